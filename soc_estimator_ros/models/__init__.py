@@ -1,0 +1,20 @@
+"""Battery models of the estimation core (numpy and scipy only, no ROS)."""
+
+from .coulomb import coulomb_efficiency, coulomb_step
+from .ocv import UNINFORMATIVE_SOC_STD, OcvCurve
+from .rc_saft import RcModelParams, SaftRcModel
+from .tables import ParamTable
+from .thevenin import RcBranch, TheveninModel, TheveninParams
+
+__all__ = [
+    "UNINFORMATIVE_SOC_STD",
+    "OcvCurve",
+    "ParamTable",
+    "RcBranch",
+    "RcModelParams",
+    "SaftRcModel",
+    "TheveninModel",
+    "TheveninParams",
+    "coulomb_efficiency",
+    "coulomb_step",
+]

@@ -1,0 +1,105 @@
+"""Parameter tables over SoC, with temperature as an optional second axis.
+
+Equivalent-circuit parameters (resistances, capacitances) vary with SoC and temperature; the
+pulse tests give them at a few SoC points (seed 000 Fig. 7) and, for real cells, a few
+temperatures. A :class:`ParamTable` holds ``values[temperature, soc]`` and interpolates linearly
+on both axes, holding the end values outside the grid (never extrapolating a resistance to a
+negative value). Scalar evaluation uses ``bisect`` so a filter can call it per sigma point.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _bracket(axis: list[float], x: float) -> tuple[int, float]:
+    """Index i and weight w so that x ~ (1 - w) * axis[i] + w * axis[i + 1], clamped."""
+    if len(axis) == 1 or x <= axis[0]:
+        return 0, 0.0
+    if x >= axis[-1]:
+        return len(axis) - 2, 1.0
+    i = bisect_right(axis, x) - 1
+    return i, (x - axis[i]) / (axis[i + 1] - axis[i])
+
+
+@dataclass(frozen=True)
+class ParamTable:
+    """Values of one parameter on a (temperature x SoC) grid.
+
+    Args:
+        soc: SoC breakpoints, strictly increasing.
+        values: shape ``(len(temperature_c), len(soc))``; a 1-D sequence means one temperature.
+        temperature_c: temperature breakpoints in degC, strictly increasing; ``(25.0,)`` when the
+            table has no temperature dependence.
+    """
+
+    soc: tuple[float, ...]
+    values: tuple[tuple[float, ...], ...]
+    temperature_c: tuple[float, ...] = (25.0,)
+    _soc_list: list[float] = field(init=False, repr=False, compare=False)
+    _t_list: list[float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        soc = [float(s) for s in self.soc]
+        temps = [float(t) for t in self.temperature_c]
+        rows = [tuple(float(v) for v in row) for row in self.values]
+        if len(rows) != len(temps) or any(len(r) != len(soc) for r in rows):
+            raise ValueError(
+                f"table shape {len(rows)}x{[len(r) for r in rows]} does not match "
+                f"{len(temps)} temperatures x {len(soc)} SoC points"
+            )
+        object.__setattr__(self, "soc", tuple(soc))
+        object.__setattr__(self, "temperature_c", tuple(temps))
+        object.__setattr__(self, "values", tuple(rows))
+        object.__setattr__(self, "_soc_list", soc)
+        object.__setattr__(self, "_t_list", temps)
+
+    @classmethod
+    def constant(cls, value: float) -> ParamTable:
+        """A table that returns ``value`` everywhere."""
+        return cls(soc=(0.0, 1.0), values=((value, value),))
+
+    @classmethod
+    def from_arrays(
+        cls,
+        soc: Sequence[float],
+        values: Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+        temperature_c: Sequence[float] | None = None,
+    ) -> ParamTable:
+        """Build from a 1-D (SoC only) or 2-D (temperature x SoC) array."""
+        arr = np.asarray(values, dtype=float)
+        if arr.ndim == 1:
+            arr = arr[np.newaxis, :]
+        temps = (25.0,) if temperature_c is None else tuple(float(t) for t in temperature_c)
+        return cls(
+            soc=tuple(float(s) for s in soc),
+            values=tuple(tuple(row) for row in arr.tolist()),
+            temperature_c=temps,
+        )
+
+    def at(self, soc: float, temperature_c: float | None = None) -> float:
+        """Bilinear interpolation at (``temperature_c``, ``soc``), held at the grid's edges.
+
+        ``temperature_c=None`` (or NaN) uses the first temperature row's neighbourhood of
+        25 degC: the row nearest 25 degC.
+        """
+        j, ws = _bracket(self._soc_list, soc)
+        rows = self.values
+        if len(rows) == 1:
+            row = rows[0]
+            return row[j] if ws == 0.0 else row[j] + ws * (row[j + 1] - row[j])
+        if temperature_c is None or temperature_c != temperature_c:  # None or NaN
+            temperature_c = 25.0
+        i, wt = _bracket(self._t_list, temperature_c)
+        r0, r1 = rows[i], rows[i + 1]
+        v0 = r0[j] + ws * (r0[j + 1] - r0[j]) if ws else r0[j]
+        v1 = r1[j] + ws * (r1[j + 1] - r1[j]) if ws else r1[j]
+        return v0 + wt * (v1 - v0)
+
+    def as_array(self) -> np.ndarray:
+        """The values as a ``(n_temperature, n_soc)`` array."""
+        return np.asarray(self.values, dtype=float)

@@ -1,0 +1,137 @@
+"""Thevenin model with n RC branches (seed 000 §2.3, eqs. 11-14; n = 1 is seed 001's model).
+
+State ``x = [SoC, V_1, ..., V_n]`` (SoC as a fraction, branch voltages in volts). With the
+core's discharge-positive current I (the same sign as the paper's Thevenin model)::
+
+    dSoC/dt = -eta(I) I / (3600 Q_ah)                 (eq. 11; the paper omits d/dt and 3600)
+    dV_i/dt = -V_i / (R_i C_i) + I / C_i              (eqs. 12-13)
+    V_o = OCV(SoC) - sum_i V_i - I R_0                (eq. 14; the paper calls R_0 "R_t")
+
+Discretization, exact for a current held over the step (zero-order hold) and parameters frozen
+at the start of the step, for any dt::
+
+    a_i = exp(-dt / (R_i C_i))
+    V_i <- a_i V_i + R_i (1 - a_i) I
+    SoC <- SoC - eta(I) I dt / (3600 Q_ah)
+
+R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`ParamTable`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..conventions import SECONDS_PER_HOUR
+from .coulomb import coulomb_efficiency
+from .ocv import OcvCurve
+from .tables import ParamTable
+
+
+@dataclass(frozen=True)
+class RcBranch:
+    """One parallel RC branch: resistance (ohm) and capacitance (farad) tables."""
+
+    r_ohm: ParamTable
+    c_f: ParamTable
+
+
+@dataclass(frozen=True)
+class TheveninParams:
+    """Thevenin model parameters (pack level).
+
+    Attributes:
+        r0_ohm: series (terminal) resistance table, ohms.
+        branches: the RC branches, fastest first by convention.
+    """
+
+    r0_ohm: ParamTable
+    branches: tuple[RcBranch, ...]
+
+
+class TheveninModel:
+    """n-RC Thevenin model: transition, output and their Jacobians."""
+
+    def __init__(
+        self,
+        ocv: OcvCurve,
+        params: TheveninParams,
+        capacity_ah: float,
+        coulomb_efficiency_charge: float = 1.0,
+    ) -> None:
+        if capacity_ah <= 0.0:
+            raise ValueError(f"capacity_ah must be > 0, got {capacity_ah}")
+        self.ocv = ocv
+        self.params = params
+        self.capacity_ah = capacity_ah
+        self.coulomb_efficiency_charge = coulomb_efficiency_charge
+        self.n_rc = len(params.branches)
+        self.dim_x = 1 + self.n_rc
+
+    # -- parameters --------------------------------------------------------------------------
+    def r0_at(self, soc: float, temperature_c: float | None = None) -> float:
+        """Series resistance in ohms."""
+        return self.params.r0_ohm.at(soc, temperature_c)
+
+    def branch_at(self, i: int, soc: float, temperature_c: float | None = None) -> tuple[float, float]:
+        """(R_i in ohms, tau_i = R_i C_i in seconds) of branch ``i``."""
+        b = self.params.branches[i]
+        r = b.r_ohm.at(soc, temperature_c)
+        return r, r * b.c_f.at(soc, temperature_c)
+
+    # -- dynamics ----------------------------------------------------------------------------
+    def step(
+        self, x: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
+    ) -> np.ndarray:
+        """State after ``dt_s`` seconds of ``current_a`` (discharge positive)."""
+        soc = float(x[0])
+        out = np.empty(self.dim_x)
+        eta = coulomb_efficiency(current_a, self.coulomb_efficiency_charge)
+        out[0] = soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
+        for i in range(self.n_rc):
+            r, tau = self.branch_at(i, soc, temperature_c)
+            a = math.exp(-dt_s / tau)
+            out[1 + i] = a * float(x[1 + i]) + r * (1.0 - a) * current_a
+        return out
+
+    def transition_jacobian(
+        self, x: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
+    ) -> np.ndarray:
+        """d step / d x, holding the parameters' SoC dependence fixed over the step."""
+        soc = float(x[0])
+        f = np.eye(self.dim_x)
+        for i in range(self.n_rc):
+            _, tau = self.branch_at(i, soc, temperature_c)
+            f[1 + i, 1 + i] = math.exp(-dt_s / tau)
+        return f
+
+    def terminal_voltage(
+        self, x: np.ndarray, current_a: float, temperature_c: float | None = None
+    ) -> float:
+        """Terminal voltage in volts (eq. 14)."""
+        soc = float(x[0])
+        v = self.ocv.ocv(soc) - current_a * self.r0_at(soc, temperature_c)
+        for i in range(self.n_rc):
+            v -= float(x[1 + i])
+        return v
+
+    def output_jacobian(
+        self, x: np.ndarray, current_a: float, temperature_c: float | None = None
+    ) -> np.ndarray:
+        """d V_o / d x as a (1, dim_x) row: [dOCV/dSoC - I dR0/dSoC, -1, ..., -1]."""
+        soc = float(x[0])
+        h = np.full((1, self.dim_x), -1.0)
+        eps = 1e-4
+        dr0 = (self.r0_at(soc + eps, temperature_c) - self.r0_at(soc - eps, temperature_c)) / (
+            2.0 * eps
+        )
+        h[0, 0] = self.ocv.slope(soc) - current_a * dr0
+        return h
+
+    def rested_state(self, soc: float) -> np.ndarray:
+        """State of a pack at rest (branch voltages relaxed to zero)."""
+        x = np.zeros(self.dim_x)
+        x[0] = soc
+        return x

@@ -1,0 +1,354 @@
+"""Battery parameter files: schema, dataclasses, and a loader that validates everything.
+
+One YAML file describes one battery (pack level): chemistry, capacity, limits, the OCV table,
+the Saft RC model, the n-RC Thevenin model as tables over SoC (temperature optional), and the
+default filter tunings. ``config/*.yaml`` are examples; the README documents every key.
+
+Every problem in a file raises :class:`ParamFileError` with one message that names the file,
+the key (dotted path), the value found and what was expected, e.g.::
+
+    config/bad.yaml: thevenin.branches[1].r_ohm[3] = -0.01: expected a number > 0
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .models.ocv import OcvCurve
+from .models.rc_saft import RcModelParams
+from .models.tables import ParamTable
+from .models.thevenin import RcBranch, TheveninParams
+
+SCHEMA_VERSION = 1
+CHEMISTRIES = ("sla", "lfp", "li_ion")
+
+
+class ParamFileError(ValueError):
+    """A battery parameter file that cannot be used, with the file, key, value and expectation."""
+
+    def __init__(self, source: str, key: str, value: Any, expected: str) -> None:
+        self.source, self.key, self.value, self.expected = source, key, value, expected
+        shown = repr(value)
+        if len(shown) > 80:
+            shown = shown[:77] + "..."
+        super().__init__(f"{source}: {key} = {shown}: expected {expected}")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Operating limits of the pack (from the manufacturer's data sheet).
+
+    ``soc_min`` is the lowest SoC the manufacturer recommends (40 % for SLA, about 20 % for
+    LFP, seed 000 §2.1); the node warns below it.
+    """
+
+    voltage_min_v: float
+    voltage_max_v: float
+    soc_min: float
+    soc_max: float
+    current_max_discharge_a: float
+    current_max_charge_a: float
+    temperature_min_c: float
+    temperature_max_c: float
+
+
+@dataclass(frozen=True)
+class OcvTable:
+    """OCV points: ``soc`` (fractions, increasing) and ``voltage_v`` (volts, increasing)."""
+
+    soc: tuple[float, ...]
+    voltage_v: tuple[float, ...]
+
+    def curve(self) -> OcvCurve:
+        """The PCHIP curve through the points."""
+        return OcvCurve(self.soc, self.voltage_v)
+
+
+@dataclass(frozen=True)
+class BatteryParams:
+    """Everything the estimators know about one battery (pack level)."""
+
+    name: str
+    chemistry: str
+    nominal_capacity_ah: float
+    capacity_ah: float
+    cells_in_series: int
+    coulomb_efficiency_charge: float
+    limits: Limits
+    ocv: OcvTable
+    rc_model: RcModelParams
+    thevenin: TheveninParams
+    filters: Mapping[str, Mapping[str, float | tuple[float, ...]]] = field(default_factory=dict)
+    source: str = ""
+
+    def ocv_curve(self) -> OcvCurve:
+        """The battery's OCV curve."""
+        return self.ocv.curve()
+
+
+class _Checker:
+    """Reads typed values out of the raw YAML tree, raising ParamFileError on the first fault."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, key: str, value: Any, expected: str) -> ParamFileError:
+        return ParamFileError(self.source, key, value, expected)
+
+    def mapping(self, node: Any, key: str) -> Mapping[str, Any]:
+        if not isinstance(node, Mapping):
+            raise self.fail(key, node, "a mapping")
+        return node
+
+    def get(self, node: Mapping[str, Any], name: str, prefix: str) -> Any:
+        key = f"{prefix}.{name}" if prefix else name
+        if name not in node:
+            raise self.fail(key, "<missing>", "this required key")
+        return node[name]
+
+    def number(
+        self,
+        value: Any,
+        key: str,
+        lo: float | None = None,
+        hi: float | None = None,
+        lo_open: bool = False,
+    ) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(key, value, "a number")
+        v = float(value)
+        if not math.isfinite(v):
+            raise self.fail(key, value, "a finite number")
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            bound = f"> {lo:g}" if lo_open else f">= {lo:g}"
+            raise self.fail(key, value, f"a number {bound}" + (f" and <= {hi:g}" if hi else ""))
+        if hi is not None and v > hi:
+            raise self.fail(key, value, f"a number <= {hi:g}")
+        return v
+
+    def positive(self, value: Any, key: str) -> float:
+        return self.number(value, key, lo=0.0, lo_open=True)
+
+    def numbers(
+        self, value: Any, key: str, positive: bool = False, min_len: int = 1
+    ) -> tuple[float, ...]:
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+            raise self.fail(key, value, "a list of numbers")
+        if len(value) < min_len:
+            raise self.fail(key, value, f"a list of at least {min_len} numbers")
+        if positive:
+            return tuple(self.positive(v, f"{key}[{i}]") for i, v in enumerate(value))
+        return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
+
+    def increasing(self, values: tuple[float, ...], key: str) -> None:
+        for i in range(1, len(values)):
+            if values[i] <= values[i - 1]:
+                raise self.fail(
+                    f"{key}[{i}]", values[i], f"a value > {values[i - 1]:g} (strictly increasing)"
+                )
+
+    def table(
+        self, value: Any, key: str, soc: tuple[float, ...], temps: tuple[float, ...]
+    ) -> ParamTable:
+        """A positive table: 1-D over SoC (one temperature) or 2-D (temperature x SoC)."""
+        if isinstance(value, Sequence) and value and isinstance(value[0], Sequence):
+            rows = [self.numbers(r, f"{key}[{i}]", positive=True) for i, r in enumerate(value)]
+        else:
+            rows = [self.numbers(value, key, positive=True)]
+        if len(rows) != len(temps):
+            raise self.fail(key, value, f"{len(temps)} rows, one per thevenin.temperature_c")
+        for i, r in enumerate(rows):
+            if len(r) != len(soc):
+                where = f"{key}[{i}]" if len(rows) > 1 else key
+                raise self.fail(where, r, f"{len(soc)} values, one per thevenin.soc point")
+        return ParamTable(soc=soc, values=tuple(rows), temperature_c=temps)
+
+
+def _parse_filters(chk: _Checker, node: Any) -> dict[str, dict[str, float | tuple[float, ...]]]:
+    """Tuning blocks: estimator name -> {name: number or list of numbers}.
+
+    Variance-like entries (names starting with ``p0``, ``q`` or ``r``) must be > 0; the
+    estimators check which entries they need when they are built.
+    """
+    out: dict[str, dict[str, float | tuple[float, ...]]] = {}
+    for est, block in chk.mapping(node, "filters").items():
+        blk = chk.mapping(block, f"filters.{est}")
+        parsed: dict[str, float | tuple[float, ...]] = {}
+        for name, value in blk.items():
+            key = f"filters.{est}.{name}"
+            positive = str(name).startswith(("p0", "q", "r"))
+            if isinstance(value, Sequence) and not isinstance(value, str):
+                parsed[str(name)] = chk.numbers(value, key, positive=positive)
+            elif positive:
+                parsed[str(name)] = chk.positive(value, key)
+            else:
+                parsed[str(name)] = chk.number(value, key)
+        out[str(est)] = parsed
+    return out
+
+
+def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
+    """Validate a raw YAML tree (already parsed) and build :class:`BatteryParams`."""
+    chk = _Checker(source)
+    root = chk.mapping(raw, "<top level>")
+    version = chk.get(root, "schema_version", "")
+    if version != SCHEMA_VERSION:
+        raise chk.fail("schema_version", version, f"{SCHEMA_VERSION}")
+    name = chk.get(root, "name", "")
+    if not isinstance(name, str) or not name.strip():
+        raise chk.fail("name", name, "a non-empty string")
+    chemistry = chk.get(root, "chemistry", "")
+    if chemistry not in CHEMISTRIES:
+        raise chk.fail("chemistry", chemistry, f"one of {', '.join(CHEMISTRIES)}")
+    nominal = chk.positive(chk.get(root, "nominal_capacity_ah", ""), "nominal_capacity_ah")
+    capacity = chk.positive(root.get("capacity_ah", nominal), "capacity_ah")
+    cells = chk.get(root, "cells_in_series", "")
+    if isinstance(cells, bool) or not isinstance(cells, int) or cells < 1:
+        raise chk.fail("cells_in_series", cells, "an integer >= 1")
+    eta = chk.number(
+        chk.get(root, "coulomb_efficiency_charge", ""), "coulomb_efficiency_charge", 0.5, 1.0
+    )
+    source_text = root.get("source", "")
+    if not isinstance(source_text, str):
+        raise chk.fail("source", source_text, "a string")
+
+    lim = chk.mapping(chk.get(root, "limits", ""), "limits")
+    vmin = chk.positive(chk.get(lim, "voltage_min_v", "limits"), "limits.voltage_min_v")
+    vmax = chk.positive(chk.get(lim, "voltage_max_v", "limits"), "limits.voltage_max_v")
+    if vmax <= vmin:
+        raise chk.fail("limits.voltage_max_v", vmax, f"a value > limits.voltage_min_v ({vmin:g})")
+    soc_min = chk.number(chk.get(lim, "soc_min", "limits"), "limits.soc_min", 0.0, 1.0)
+    soc_max = chk.number(chk.get(lim, "soc_max", "limits"), "limits.soc_max", 0.0, 1.0)
+    if soc_max <= soc_min:
+        raise chk.fail("limits.soc_max", soc_max, f"a value > limits.soc_min ({soc_min:g})")
+    tmin = chk.number(chk.get(lim, "temperature_min_c", "limits"), "limits.temperature_min_c")
+    tmax = chk.number(chk.get(lim, "temperature_max_c", "limits"), "limits.temperature_max_c")
+    if tmax <= tmin:
+        raise chk.fail("limits.temperature_max_c", tmax, f"a value > {tmin:g}")
+    limits = Limits(
+        voltage_min_v=vmin,
+        voltage_max_v=vmax,
+        soc_min=soc_min,
+        soc_max=soc_max,
+        current_max_discharge_a=chk.positive(
+            chk.get(lim, "current_max_discharge_a", "limits"), "limits.current_max_discharge_a"
+        ),
+        current_max_charge_a=chk.positive(
+            chk.get(lim, "current_max_charge_a", "limits"), "limits.current_max_charge_a"
+        ),
+        temperature_min_c=tmin,
+        temperature_max_c=tmax,
+    )
+
+    ocv_node = chk.mapping(chk.get(root, "ocv", ""), "ocv")
+    ocv_soc = chk.numbers(chk.get(ocv_node, "soc", "ocv"), "ocv.soc", min_len=2)
+    ocv_v = chk.numbers(chk.get(ocv_node, "voltage_v", "ocv"), "ocv.voltage_v", positive=True)
+    if len(ocv_v) != len(ocv_soc):
+        raise chk.fail("ocv.voltage_v", ocv_v, f"{len(ocv_soc)} values, one per ocv.soc point")
+    for i, s in enumerate(ocv_soc):
+        chk.number(s, f"ocv.soc[{i}]", 0.0, 1.0)
+    chk.increasing(ocv_soc, "ocv.soc")
+    chk.increasing(ocv_v, "ocv.voltage_v")
+
+    rc = chk.mapping(chk.get(root, "rc_model", ""), "rc_model")
+    rc_params = RcModelParams(
+        **{
+            k: chk.positive(chk.get(rc, k, "rc_model"), f"rc_model.{k}")
+            for k in ("c_b_f", "c_s_f", "r_b_ohm", "r_s_ohm", "r_t_ohm")
+        }
+    )
+
+    th = chk.mapping(chk.get(root, "thevenin", ""), "thevenin")
+    th_soc = chk.numbers(chk.get(th, "soc", "thevenin"), "thevenin.soc")
+    for i, s in enumerate(th_soc):
+        chk.number(s, f"thevenin.soc[{i}]", 0.0, 1.0)
+    chk.increasing(th_soc, "thevenin.soc")
+    temps = chk.numbers(th.get("temperature_c", [25.0]), "thevenin.temperature_c")
+    chk.increasing(temps, "thevenin.temperature_c")
+    r0 = chk.table(chk.get(th, "r0_ohm", "thevenin"), "thevenin.r0_ohm", th_soc, temps)
+    branches_node = chk.get(th, "branches", "thevenin")
+    if isinstance(branches_node, (str, bytes)) or not isinstance(branches_node, Sequence):
+        raise chk.fail("thevenin.branches", branches_node, "a list of {r_ohm, c_f} branches")
+    if not 1 <= len(branches_node) <= 3:
+        raise chk.fail("thevenin.branches", branches_node, "1 to 3 RC branches")
+    branches = []
+    for i, b in enumerate(branches_node):
+        key = f"thevenin.branches[{i}]"
+        bm = chk.mapping(b, key)
+        branches.append(
+            RcBranch(
+                r_ohm=chk.table(chk.get(bm, "r_ohm", key), f"{key}.r_ohm", th_soc, temps),
+                c_f=chk.table(chk.get(bm, "c_f", key), f"{key}.c_f", th_soc, temps),
+            )
+        )
+
+    filters = _parse_filters(chk, root.get("filters", {}))
+    return BatteryParams(
+        name=name,
+        chemistry=chemistry,
+        nominal_capacity_ah=nominal,
+        capacity_ah=capacity,
+        cells_in_series=cells,
+        coulomb_efficiency_charge=eta,
+        limits=limits,
+        ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v),
+        rc_model=rc_params,
+        thevenin=TheveninParams(r0_ohm=r0, branches=tuple(branches)),
+        filters=filters,
+        source=source_text,
+    )
+
+
+def load_battery_params(path: str | Path) -> BatteryParams:
+    """Read and validate a battery parameter file; :class:`ParamFileError` on any fault."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ParamFileError(str(p), "<file>", str(exc), "a readable YAML file") from exc
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ParamFileError(str(p), "<file>", str(exc).splitlines()[0], "valid YAML") from exc
+    return parse_battery_params(raw, str(p))
+
+
+def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
+    """The plain-YAML form of ``params`` (inverse of :func:`parse_battery_params`)."""
+    th = params.thevenin
+    temps = list(th.r0_ohm.temperature_c)
+
+    def table(t: ParamTable) -> list[float] | list[list[float]]:
+        rows = [list(r) for r in t.values]
+        return rows[0] if len(rows) == 1 else rows
+
+    out: dict[str, Any] = {
+        "schema_version": SCHEMA_VERSION,
+        "name": params.name,
+        "chemistry": params.chemistry,
+        "source": params.source,
+        "nominal_capacity_ah": params.nominal_capacity_ah,
+        "capacity_ah": params.capacity_ah,
+        "cells_in_series": params.cells_in_series,
+        "coulomb_efficiency_charge": params.coulomb_efficiency_charge,
+        "limits": {k: getattr(params.limits, k) for k in Limits.__dataclass_fields__},
+        "ocv": {"soc": list(params.ocv.soc), "voltage_v": list(params.ocv.voltage_v)},
+        "rc_model": {k: getattr(params.rc_model, k) for k in RcModelParams.__dataclass_fields__},
+        "thevenin": {
+            "soc": list(th.r0_ohm.soc),
+            "temperature_c": temps,
+            "r0_ohm": table(th.r0_ohm),
+            "branches": [{"r_ohm": table(b.r_ohm), "c_f": table(b.c_f)} for b in th.branches],
+        },
+        "filters": {
+            est: {k: list(v) if isinstance(v, tuple) else v for k, v in blk.items()}
+            for est, blk in params.filters.items()
+        },
+    }
+    return out

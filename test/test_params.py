@@ -1,0 +1,129 @@
+"""Battery parameter files: the bundled files load, and every kind of bad file is rejected
+with one message that names the file, the key, the value and what was expected."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+
+from soc_estimator_ros.params import (
+    ParamFileError,
+    battery_params_to_dict,
+    load_battery_params,
+    parse_battery_params,
+)
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+BUNDLED = sorted(CONFIG.glob("*.yaml"))
+
+
+def base() -> dict:
+    return yaml.safe_load((CONFIG / "sla_12v5ah.yaml").read_text())
+
+
+@pytest.mark.parametrize("path", BUNDLED, ids=lambda p: p.name)
+def test_bundled_files_load_and_round_trip(path: Path) -> None:
+    params = load_battery_params(path)
+    assert params.capacity_ah > 0 and params.cells_in_series >= 1
+    again = parse_battery_params(battery_params_to_dict(params), "round-trip")
+    assert again == params
+
+
+def test_bundled_chemistries_present() -> None:
+    chems = {load_battery_params(p).chemistry for p in BUNDLED}
+    assert {"sla", "lfp"} <= chems
+
+
+def _set(tree: dict, dotted: str, value) -> None:
+    node = tree
+    parts = dotted.replace("]", "").replace("[", ".").split(".")
+    for part in parts[:-1]:
+        node = node[int(part)] if part.isdigit() else node[part]
+    last = parts[-1]
+    if value is _DELETE:
+        del node[int(last) if last.isdigit() else last]
+    elif last.isdigit():
+        node[int(last)] = value
+    else:
+        node[last] = value
+
+
+_DELETE = object()
+
+BAD = [
+    # (what to change, new value, key named in the message, expectation fragment)
+    ("nominal_capacity_ah", _DELETE, "nominal_capacity_ah", "required"),
+    ("limits.voltage_min_v", _DELETE, "limits.voltage_min_v", "required"),
+    ("thevenin.branches[0].c_f", _DELETE, "thevenin.branches[0].c_f", "required"),
+    ("nominal_capacity_ah", -5.0, "nominal_capacity_ah", "> 0"),
+    ("nominal_capacity_ah", "five", "nominal_capacity_ah", "a number"),
+    ("nominal_capacity_ah", float("inf"), "nominal_capacity_ah", "finite"),
+    ("limits.soc_min", 1.5, "limits.soc_min", "<= 1"),
+    ("limits.voltage_max_v", 9.0, "limits.voltage_max_v", "> limits.voltage_min_v"),
+    ("coulomb_efficiency_charge", 1.2, "coulomb_efficiency_charge", "<= 1"),
+    ("cells_in_series", 0, "cells_in_series", "integer >= 1"),
+    ("chemistry", "nimh", "chemistry", "one of sla, lfp, li_ion"),
+    ("schema_version", 7, "schema_version", "1"),
+    ("ocv.voltage_v[4]", 11.0, "ocv.voltage_v[4]", "strictly increasing"),
+    ("ocv.soc[2]", 0.05, "ocv.soc[2]", "strictly increasing"),
+    ("ocv.soc[10]", 1.2, "ocv.soc[10]", "<= 1"),
+    ("ocv.voltage_v", [12.0, 12.5], "ocv.voltage_v", "one per ocv.soc point"),
+    ("rc_model.r_b_ohm", -0.01, "rc_model.r_b_ohm", "> 0"),
+    ("rc_model.c_s_f", 0.0, "rc_model.c_s_f", "> 0"),
+    ("thevenin.r0_ohm[1]", -0.03, "thevenin.r0_ohm[1]", "> 0"),
+    ("thevenin.branches[1].c_f[2]", -1.0, "thevenin.branches[1].c_f[2]", "> 0"),
+    ("thevenin.branches[0].r_ohm", [0.01, 0.01], "thevenin.branches[0].r_ohm", "one per"),
+    ("thevenin.soc", [0.2, 0.1, 0.8, 1.0], "thevenin.soc[1]", "strictly increasing"),
+    ("thevenin.branches", [], "thevenin.branches", "1 to 3 RC branches"),
+    ("filters.rc_kf_paper.r", -0.8, "filters.rc_kf_paper.r", "> 0"),
+    ("filters.rc_kf_paper.q_diag", [1e-5, "x", 0.9], "filters.rc_kf_paper.q_diag[1]", "number"),
+    ("limits", [1, 2], "limits", "a mapping"),
+]
+
+
+@pytest.mark.parametrize(("key", "value", "named", "expected"), BAD, ids=[b[0] for b in BAD])
+def test_bad_file_rejected_with_clear_message(tmp_path, key, value, named, expected) -> None:
+    tree = copy.deepcopy(base())
+    _set(tree, key, value)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(ParamFileError) as info:
+        load_battery_params(path)
+    message = str(info.value)
+    assert str(path) in message
+    assert f"{named} = " in message
+    assert expected in message
+    assert info.value.key == named
+
+
+def test_temperature_tables_must_have_one_row_per_temperature(tmp_path) -> None:
+    tree = base()
+    tree["thevenin"]["temperature_c"] = [0.0, 25.0]
+    path = tmp_path / "t.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(ParamFileError, match=r"thevenin.r0_ohm = .*2 rows"):
+        load_battery_params(path)
+    # Two rows everywhere makes it valid, and the temperature axis is used.
+    th = tree["thevenin"]
+    th["r0_ohm"] = [[2 * v for v in th["r0_ohm"]], th["r0_ohm"]]
+    for b in th["branches"]:
+        b["r_ohm"] = [b["r_ohm"], b["r_ohm"]]
+        b["c_f"] = [b["c_f"], b["c_f"]]
+    path.write_text(yaml.safe_dump(tree))
+    params = load_battery_params(path)
+    assert params.thevenin.r0_ohm.at(0.5, 0.0) == pytest.approx(2 * params.thevenin.r0_ohm.at(0.5))
+
+
+def test_unreadable_and_malformed_yaml(tmp_path) -> None:
+    with pytest.raises(ParamFileError, match="readable YAML file"):
+        load_battery_params(tmp_path / "missing.yaml")
+    bad = tmp_path / "broken.yaml"
+    bad.write_text("name: [unclosed\n")
+    with pytest.raises(ParamFileError, match="valid YAML"):
+        load_battery_params(bad)
+    bad.write_text("- just\n- a list\n")
+    with pytest.raises(ParamFileError, match="a mapping"):
+        load_battery_params(bad)

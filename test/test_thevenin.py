@@ -1,0 +1,101 @@
+"""The n-RC Thevenin model's discretization against an independent ODE integration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from soc_estimator_ros.models import OcvCurve, ParamTable, RcBranch, TheveninModel, TheveninParams
+from soc_estimator_ros.models.coulomb import coulomb_step
+
+OCV = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.8])
+TOL_V = 1e-4  # 0.1 mV, as for the RC model: exact discretization, solver residual ~1e-9 V
+
+
+def make_model(n_rc: int, rng: np.random.Generator, eta: float = 0.95) -> TheveninModel:
+    branches = tuple(
+        RcBranch(
+            ParamTable.constant(float(rng.uniform(0.005, 0.05))),
+            ParamTable.constant(float(rng.uniform(500.0, 50000.0))),
+        )
+        for _ in range(n_rc)
+    )
+    params = TheveninParams(ParamTable.constant(float(rng.uniform(0.01, 0.05))), branches)
+    return TheveninModel(OCV, params, capacity_ah=5.0, coulomb_efficiency_charge=eta)
+
+
+@pytest.mark.parametrize(("n_rc", "seed"), [(1, 0), (2, 1), (2, 2), (3, 3)])
+def test_discretization_matches_ode(n_rc: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    model = make_model(n_rc, rng)
+    rs = [b.r_ohm.at(0.5) for b in model.params.branches]
+    cs = [b.c_f.at(0.5) for b in model.params.branches]
+
+    def rhs(_t, y, i):
+        eta = 0.95 if i < 0 else 1.0
+        d = [-eta * i / (3600.0 * 5.0)]
+        d += [-y[1 + j] / (rs[j] * cs[j]) + i / cs[j] for j in range(n_rc)]
+        return d
+
+    n = 150
+    dts = rng.choice([0.02, 0.1, 1.0, 9.0, 120.0], size=n)
+    currents = rng.choice([0.0, 3.0, 25.0, -2.0], size=n)
+    x = model.rested_state(0.9)
+    y = x.copy()
+    for k in range(n):
+        sol = solve_ivp(rhs, (0.0, dts[k]), y, args=(currents[k],), rtol=1e-11, atol=1e-13)
+        y = sol.y[:, -1]
+        x = model.step(x, currents[k], dts[k])
+        v_model = model.terminal_voltage(x, currents[k])
+        v_ref = OCV.ocv(y[0]) - sum(y[1:]) - currents[k] * model.r0_at(y[0])
+        assert abs(v_model - v_ref) < TOL_V
+        assert abs(x[0] - y[0]) < 1e-9
+
+
+def test_soc_follows_coulomb_counting_with_charge_efficiency() -> None:
+    model = make_model(2, np.random.default_rng(5), eta=0.9)
+    x = model.step(model.rested_state(0.5), -5.0, 3600.0)  # 1 h of 5 A charge
+    assert x[0] == pytest.approx(0.5 + 0.9 * 5.0 / 5.0)
+    assert x[0] == pytest.approx(coulomb_step(0.5, -5.0, 3600.0, 5.0, 0.9))
+    x = model.step(model.rested_state(0.5), 2.5, 3600.0)  # discharge: eta = 1
+    assert x[0] == pytest.approx(0.0)
+
+
+def test_terminal_voltage_drops_under_discharge() -> None:
+    model = make_model(2, np.random.default_rng(6))
+    x = model.rested_state(0.8)
+    v_rest = model.terminal_voltage(x, 0.0)
+    assert v_rest == pytest.approx(OCV.ocv(0.8))
+    assert model.terminal_voltage(x, 10.0) < v_rest
+    x = model.step(x, 10.0, 30.0)
+    assert all(x[1:] > 0.0)  # polarization builds up on discharge
+
+
+def test_jacobians_match_finite_differences() -> None:
+    model = make_model(2, np.random.default_rng(7))
+    x = np.array([0.63, 0.02, 0.05])
+    h = model.output_jacobian(x, 7.0)
+    f = model.transition_jacobian(x, 7.0, 0.1)
+    eps = 1e-6
+    for j in range(3):
+        dx = np.zeros(3)
+        dx[j] = eps
+        num_h = (model.terminal_voltage(x + dx, 7.0) - model.terminal_voltage(x - dx, 7.0)) / (
+            2 * eps
+        )
+        num_f = (model.step(x + dx, 7.0, 0.1) - model.step(x - dx, 7.0, 0.1)) / (2 * eps)
+        assert h[0, j] == pytest.approx(num_h, rel=1e-5, abs=1e-8)
+        assert np.allclose(f[:, j], num_f, rtol=1e-6, atol=1e-9)
+
+
+def test_tables_over_soc_and_temperature() -> None:
+    table = ParamTable.from_arrays([0.0, 1.0], [[0.02, 0.04], [0.01, 0.02]], [0.0, 25.0])
+    assert table.at(0.5, 0.0) == pytest.approx(0.03)
+    assert table.at(0.5, 25.0) == pytest.approx(0.015)
+    assert table.at(0.5, 12.5) == pytest.approx(0.0225)
+    assert table.at(0.5, -40.0) == pytest.approx(0.03)  # held at the grid edge
+    assert table.at(2.0, 25.0) == pytest.approx(0.02)
+    assert table.at(0.5, None) == pytest.approx(0.015)  # no temperature: the 25 degC row
+    with pytest.raises(ValueError):
+        ParamTable.from_arrays([0.0, 1.0], [[0.02, 0.04, 0.05]])
