@@ -1,0 +1,257 @@
+"""The one interface every estimator shares, and the time and covariance handling they share.
+
+``step(t_s, current_a, voltage_v, temperature_c=None) -> Estimate`` with the core's conventions
+(current positive on discharge, SoC as a fraction). Time handling, common to all estimators:
+
+* the first sample initializes the time base (and, for filters, runs a measurement update);
+* ``dt <= 0`` (a duplicate or out-of-order stamp) is **rejected**: the state is not touched and
+  the returned estimate has status ``REJECTED_DT``; the caller counts it;
+* ``0 < dt <= max_step_s`` is a normal step; the current of the previous sample is held over the
+  interval (zero-order hold: a sample reports the current from its stamp on);
+* ``dt > max_step_s`` is a **gap**: samples were lost, so the current over the gap is unknown.
+  It is bridged with the mean of the currents at both ends, and the SoC variance grows by
+  ``(gap_current_std_a * dt / 3600 / Q)^2`` so the covariance says how little is known;
+  the estimate has status ``GAP``.
+
+Covariance hygiene (after Plett's SPKF notes): after every predict and update the covariance is
+symmetrized and, if a Cholesky factorization fails, its eigenvalues are floored; the SoC state
+is clipped to [0, 1] and the clipped amount is added to its variance, so a divergence shows in
+the covariance and the ``clip_count`` instead of being hidden.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..conventions import SECONDS_PER_HOUR
+from ..params import BatteryParams
+
+
+class StepStatus(str, Enum):
+    """What an estimator did with one sample."""
+
+    INITIALIZED = "initialized"
+    OK = "ok"
+    GAP = "gap"
+    REJECTED_DT = "rejected_dt"
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """An estimator's output for one sample.
+
+    Attributes:
+        t_s: the sample's time in seconds.
+        soc: SoC estimate as a fraction in [0, 1].
+        soc_var: its variance (fraction^2).
+        x: the full state vector; names in ``state_names``.
+        p: the full state covariance.
+        voltage_pred_v: the terminal voltage the model predicted for this sample before the
+            measurement update (NaN for estimators without a voltage model).
+        innovation_v: measured minus predicted voltage (NaN when no update ran).
+        nis: normalized innovation squared, innovation^2 / S (NaN when no update ran).
+        status: what happened to the sample (see :class:`StepStatus`).
+        updated: whether a voltage measurement update ran on this sample.
+    """
+
+    t_s: float
+    soc: float
+    soc_var: float
+    x: np.ndarray
+    p: np.ndarray
+    state_names: tuple[str, ...]
+    voltage_pred_v: float
+    innovation_v: float
+    nis: float
+    status: StepStatus
+    updated: bool
+
+    @property
+    def soc_std(self) -> float:
+        """Standard deviation of the SoC estimate."""
+        return math.sqrt(max(self.soc_var, 0.0))
+
+
+def condition_covariance(p: np.ndarray, floor: float = 1e-15) -> np.ndarray:
+    """Symmetrize ``p`` and make it positive definite (eigenvalue floor) if it is not."""
+    p = 0.5 * (p + p.T)
+    try:
+        np.linalg.cholesky(p)
+        return p
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(p)
+        w = np.maximum(w, floor)
+        p = (v * w) @ v.T
+        return 0.5 * (p + p.T)
+
+
+@dataclass(frozen=True)
+class TimePolicy:
+    """How an estimator treats time steps (seconds)."""
+
+    max_step_s: float = 5.0
+    gap_current_std_a: float = 1.0
+
+
+class Estimator(ABC):
+    """Base class: time handling, SoC clipping, handover; subclasses do the filtering.
+
+    Subclasses set ``name``, ``state_names``, keep their state in ``self.x`` and covariance in
+    ``self.p`` (SoC at index ``soc_index``), and implement :meth:`_predict` and :meth:`_update`.
+    """
+
+    name: ClassVar[str] = ""
+    state_names: tuple[str, ...] = ("soc",)
+    soc_index: int = 0
+    #: Tuning entries and their defaults; a battery file's ``filters.<name>`` overrides them.
+    default_tuning: ClassVar[Mapping[str, Any]] = {}
+
+    def __init__(
+        self,
+        battery: BatteryParams,
+        initial_soc: float,
+        initial_soc_std: float = 0.05,
+        tuning: Mapping[str, Any] | None = None,
+        time_policy: TimePolicy | None = None,
+    ) -> None:
+        if not (0.0 <= initial_soc <= 1.0):
+            raise ValueError(f"initial_soc must be within [0, 1], got {initial_soc}")
+        if not initial_soc_std > 0.0:
+            raise ValueError(f"initial_soc_std must be > 0, got {initial_soc_std}")
+        self.battery = battery
+        self.tuning = self._merge_tuning(tuning)
+        policy = time_policy or TimePolicy(
+            gap_current_std_a=0.1 * battery.capacity_ah  # 0.1 C of unknown current in a gap
+        )
+        self.time_policy = policy
+        self.capacity_ah = battery.capacity_ah
+        self.t_last_s: float | None = None
+        self.current_last_a = 0.0
+        self.clip_count = 0
+        self.last: Estimate | None = None
+        self._init_state(initial_soc, initial_soc_std**2)
+
+    # -- configuration -----------------------------------------------------------------------
+    @classmethod
+    def _merge_tuning(cls, tuning: Mapping[str, Any] | None) -> dict[str, Any]:
+        merged = dict(cls.default_tuning)
+        for key, value in (tuning or {}).items():
+            if key not in merged:
+                raise ValueError(
+                    f"{cls.name}: unknown tuning entry {key!r}; known: {sorted(merged)}"
+                )
+            default = merged[key]
+            if isinstance(default, tuple):
+                value = tuple(float(v) for v in value)
+                if len(value) != len(default):
+                    raise ValueError(
+                        f"{cls.name}: tuning {key!r} needs {len(default)} values, got {value}"
+                    )
+            merged[key] = value
+        return merged
+
+    # -- subclass hooks ----------------------------------------------------------------------
+    @abstractmethod
+    def _init_state(self, soc: float, soc_var: float) -> None:
+        """Set ``self.x`` and ``self.p`` for a pack at rest at ``soc``."""
+
+    @abstractmethod
+    def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
+        """Propagate over ``dt_s`` with ``current_a`` held, the current then becoming ``next``."""
+
+    @abstractmethod
+    def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
+        """Measurement update; return (predicted voltage, innovation, NIS), NaNs if none."""
+
+    def _inflate_soc_variance(self, var: float) -> None:
+        i = self.soc_index
+        self.p[i, i] += var
+
+    # -- public API --------------------------------------------------------------------------
+    @property
+    def soc(self) -> float:
+        """Current SoC estimate."""
+        return float(self.x[self.soc_index])
+
+    @property
+    def soc_var(self) -> float:
+        """Current SoC variance."""
+        i = self.soc_index
+        return float(self.p[i, i])
+
+    def step(
+        self,
+        t_s: float,
+        current_a: float,
+        voltage_v: float,
+        temperature_c: float | None = None,
+    ) -> Estimate:
+        """Process one sample; see the module docstring for the time rules."""
+        if self.t_last_s is None:
+            status = StepStatus.INITIALIZED
+        else:
+            dt = t_s - self.t_last_s
+            if not dt > 0.0:
+                return self._estimate(t_s, StepStatus.REJECTED_DT, math.nan, math.nan, math.nan)
+            if dt > self.time_policy.max_step_s:
+                status = StepStatus.GAP
+                i_mean = 0.5 * (self.current_last_a + current_a)
+                self._predict(dt, i_mean, current_a, temperature_c)
+                q = self.time_policy.gap_current_std_a * dt / (SECONDS_PER_HOUR * self.capacity_ah)
+                self._inflate_soc_variance(q * q)
+            else:
+                status = StepStatus.OK
+                self._predict(dt, self.current_last_a, current_a, temperature_c)
+            self.p = condition_covariance(self.p)
+        v_pred, innov, nis = self._update(current_a, voltage_v, temperature_c)
+        self._clip_soc()
+        self.p = condition_covariance(self.p)
+        self.t_last_s = t_s
+        self.current_last_a = current_a
+        self.last = self._estimate(t_s, status, v_pred, innov, nis)
+        return self.last
+
+    def _clip_soc(self) -> None:
+        i = self.soc_index
+        s = float(self.x[i])
+        clipped = min(max(s, 0.0), 1.0)
+        if clipped != s:
+            self.clip_count += 1
+            self.x[i] = clipped
+            self.p[i, i] += (s - clipped) ** 2
+
+    def _estimate(
+        self, t_s: float, status: StepStatus, v_pred: float, innov: float, nis: float
+    ) -> Estimate:
+        return Estimate(
+            t_s=t_s,
+            soc=self.soc,
+            soc_var=self.soc_var,
+            x=np.array(self.x, dtype=float),
+            p=np.array(self.p, dtype=float),
+            state_names=self.state_names,
+            voltage_pred_v=v_pred,
+            innovation_v=innov,
+            nis=nis,
+            status=status,
+            updated=not math.isnan(innov),
+        )
+
+    def reset_soc(self, soc: float, soc_std: float) -> None:
+        """Re-initialize to a pack at rest at ``soc`` (keeps the time base)."""
+        if not (0.0 <= soc <= 1.0) or not soc_std > 0.0:
+            raise ValueError(f"reset_soc needs soc in [0, 1] and std > 0, got {soc}, {soc_std}")
+        self._init_state(soc, soc_std**2)
+
+    def start_from(self, t_s: float | None, soc: float, soc_var: float, current_a: float) -> None:
+        """Continue another estimator's run: its last stamp, SoC, variance and current."""
+        self._init_state(min(max(soc, 0.0), 1.0), max(soc_var, 1e-12))
+        self.t_last_s = t_s
+        self.current_last_a = current_a
