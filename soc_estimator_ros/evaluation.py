@@ -1,0 +1,146 @@
+"""Run an estimator over a recorded series, and score it against a reference SoC.
+
+One offline path: the replay CLI, the benchmarks, the accuracy tests and the node's
+offline-equals-live test all call :func:`run_estimator` and :func:`accuracy`.
+
+Metrics (as in seed 000 §4): mean absolute error, RMSE and maximum absolute error of the SoC,
+in SoC fraction, over the samples after a convergence window (10 minutes by default, the
+issue's window); convergence time is the time from the first sample until
+``|error| < threshold`` (2 %) is first reached, and settle time until it holds for good.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from .estimators.base import Estimator
+
+
+class SampleSeries(Protocol):
+    """What :func:`run_estimator` needs: aligned arrays (``bag_io.BatterySeries`` fits)."""
+
+    t_s: np.ndarray
+    current_a: np.ndarray
+    voltage_v: np.ndarray
+    temperature_c: np.ndarray
+
+
+@dataclass(frozen=True)
+class EstimateSeries:
+    """An estimator's outputs over a run, one row per input sample."""
+
+    estimator: str
+    t_s: np.ndarray
+    soc: np.ndarray
+    soc_std: np.ndarray
+    voltage_v: np.ndarray
+    voltage_pred_v: np.ndarray
+    current_a: np.ndarray
+    nis: np.ndarray
+    status: tuple[str, ...]
+
+
+def run_estimator(estimator: Estimator, series: SampleSeries) -> EstimateSeries:
+    """Feed every sample of ``series`` to ``estimator`` in order and collect the estimates."""
+    n = len(series.t_s)
+    soc = np.empty(n)
+    std = np.empty(n)
+    v_pred = np.empty(n)
+    nis = np.empty(n)
+    status: list[str] = []
+    temps = series.temperature_c
+    for k in range(n):
+        t = float(temps[k]) if temps is not None else math.nan
+        est = estimator.step(
+            float(series.t_s[k]),
+            float(series.current_a[k]),
+            float(series.voltage_v[k]),
+            None if math.isnan(t) else t,
+        )
+        soc[k] = est.soc
+        std[k] = est.soc_std
+        v_pred[k] = est.voltage_pred_v
+        nis[k] = est.nis
+        status.append(est.status.value)
+    return EstimateSeries(
+        estimator=estimator.name,
+        t_s=np.asarray(series.t_s, dtype=float),
+        soc=soc,
+        soc_std=std,
+        voltage_v=np.asarray(series.voltage_v, dtype=float),
+        voltage_pred_v=v_pred,
+        current_a=np.asarray(series.current_a, dtype=float),
+        nis=nis,
+        status=tuple(status),
+    )
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """SoC accuracy against a reference (fractions of SoC; times in seconds)."""
+
+    mae: float
+    rmse: float
+    max_abs: float
+    t_converge_s: float
+    t_settle_s: float
+    window_s: float
+    n_samples: int
+
+    def as_percent_row(self) -> dict[str, float]:
+        """MAE, RMSE, max in percent points and times in seconds, for tables."""
+        return {
+            "mae_pct": 100.0 * self.mae,
+            "rmse_pct": 100.0 * self.rmse,
+            "max_pct": 100.0 * self.max_abs,
+            "t_converge_s": self.t_converge_s,
+            "t_settle_s": self.t_settle_s,
+        }
+
+
+def accuracy(
+    t_s: np.ndarray,
+    soc_est: np.ndarray,
+    soc_ref: np.ndarray,
+    window_s: float = 600.0,
+    threshold: float = 0.02,
+) -> Accuracy:
+    """Score ``soc_est`` against ``soc_ref`` on the same samples.
+
+    Samples whose reference is NaN are ignored. Errors are computed on samples with
+    ``t - t[0] >= window_s``. ``t_converge_s`` / ``t_settle_s`` are ``inf`` when never reached.
+    """
+    t = np.asarray(t_s, dtype=float)
+    err = np.asarray(soc_est, dtype=float) - np.asarray(soc_ref, dtype=float)
+    valid = np.isfinite(err)
+    if not np.any(valid):
+        raise ValueError("no sample has both an estimate and a reference SoC")
+    t_rel = t - t[0]
+    after = valid & (t_rel >= window_s)
+    if not np.any(after):
+        raise ValueError(f"the run is shorter than the {window_s:g} s convergence window")
+    e = np.abs(err[after])
+    inside = np.abs(err) < threshold
+    inside_valid = inside | ~valid
+    hit = np.flatnonzero(inside & valid)
+    t_conv = float(t_rel[hit[0]]) if hit.size else math.inf
+    outside = np.flatnonzero(~inside_valid)
+    if outside.size == 0:
+        t_settle = 0.0
+    elif outside[-1] + 1 < t.size:
+        t_settle = float(t_rel[outside[-1] + 1])
+    else:
+        t_settle = math.inf
+    return Accuracy(
+        mae=float(np.mean(e)),
+        rmse=float(np.sqrt(np.mean(e * e))),
+        max_abs=float(np.max(e)),
+        t_converge_s=t_conv,
+        t_settle_s=t_settle,
+        window_s=window_s,
+        n_samples=int(after.sum()),
+    )
