@@ -13,14 +13,22 @@ from typing import Any
 from ..params import BatteryParams
 from .base import Estimate, Estimator, StepStatus, TimePolicy, condition_covariance
 from .coulomb import CoulombCounter
+from .dcc_ekf import DccEkf
+from .ekf import Ekf
+from .hybrid import Hybrid
+from .rc_kf import RcKf
+from .t2rc_ukf import T2rcUkf
 
 ESTIMATORS: dict[str, type[Estimator]] = {
-    cls.name: cls
-    for cls in (CoulombCounter,)
+    cls.name: cls for cls in (Hybrid, T2rcUkf, RcKf, Ekf, DccEkf, CoulombCounter)
 }
 
-#: Named tuning presets: preset name -> (estimator name, tuning block in the battery file).
-PRESETS: dict[str, str] = {}
+#: The estimator the node and the replay use unless told otherwise.
+DEFAULT_ESTIMATOR = Hybrid.name
+
+#: Named tuning presets (the papers' own tunings): preset name -> estimator name. The tuning
+#: block of the same name in the battery file's ``filters`` holds the values.
+PRESETS: dict[str, str] = {"rc_kf_paper": RcKf.name, "ekf_paper": Ekf.name}
 
 
 def make_estimator(
@@ -51,6 +59,7 @@ def make_estimator(
 
 
 __all__ = [
+    "DEFAULT_ESTIMATOR",
     "ESTIMATORS",
     "PRESETS",
     "Estimate",

@@ -105,6 +105,8 @@ class Estimator(ABC):
 
     Subclasses set ``name``, ``state_names``, keep their state in ``self.x`` and covariance in
     ``self.p`` (SoC at index ``soc_index``), and implement :meth:`_predict` and :meth:`_update`.
+    An estimator whose state has no SoC entry (the RC model's) overrides :attr:`soc`,
+    :attr:`soc_var`, :meth:`_clip_soc` and :meth:`_inflate_soc_variance`.
     """
 
     name: ClassVar[str] = ""

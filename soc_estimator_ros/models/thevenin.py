@@ -135,3 +135,34 @@ class TheveninModel:
         x = np.zeros(self.dim_x)
         x[0] = soc
         return x
+
+
+def one_rc_equivalent(params: TheveninParams) -> TheveninParams:
+    """Reduce an n-RC model to the 1-RC model of seed 001's EKF, grid point by grid point.
+
+    The single branch keeps the total polarization resistance ``R_p = sum R_i`` (same
+    steady-state voltage under a constant current) and the resistance-weighted mean time
+    constant ``tau_p = sum R_i tau_i / R_p`` (same area under the step response), so it
+    matches the n-RC model at DC and in the charge it stores.
+    """
+    if len(params.branches) == 1:
+        return params
+    first = params.branches[0].r_ohm
+    r_rows, c_rows = [], []
+    for temp in first.temperature_c:
+        r_row, c_row = [], []
+        for soc in first.soc:
+            rs = [b.r_ohm.at(soc, temp) for b in params.branches]
+            taus = [r * b.c_f.at(soc, temp) for r, b in zip(rs, params.branches, strict=True)]
+            r_p = sum(rs)
+            tau_p = sum(r * t for r, t in zip(rs, taus, strict=True)) / r_p
+            r_row.append(r_p)
+            c_row.append(tau_p / r_p)
+        r_rows.append(r_row)
+        c_rows.append(c_row)
+    temps = first.temperature_c
+    branch = RcBranch(
+        ParamTable.from_arrays(first.soc, r_rows, temps),
+        ParamTable.from_arrays(first.soc, c_rows, temps),
+    )
+    return TheveninParams(r0_ohm=params.r0_ohm, branches=(branch,))

@@ -1,0 +1,93 @@
+"""T2RC+UKF: the 2-RC Thevenin model with an unscented Kalman filter (seed 000 §3.2).
+
+State ``[SoC, V_1, V_2]``, measurement the terminal voltage (eq. 14), filterpy's
+``UnscentedKalmanFilter`` with Van der Merwe's scaled sigma points. Parameters come from the
+battery file's SoC (and temperature) tables, evaluated per sigma point.
+
+Where the paper is wrong (eqs. 26-42), checked against Wan & van der Merwe (2000), which
+filterpy implements:
+
+* eqs. 30 and 34 print the weights with gamma; they are W0m = lambda / (N + lambda) and
+  W0c = lambda / (N + lambda) + (1 - alpha^2 + beta), with lambda = alpha^2 (N + kappa) - N;
+* eq. 35 prints ``1 / (2 (N + 9 gamma))``; Wic = Wim = 1 / (2 (N + lambda));
+* eq. 38 drops the weights and the measurement noise: P_y = sum Wc (Y - y)(Y - y)^T + R;
+  eq. 39 drops the weights too;
+* eq. 40 prints the gain as P_y P_xy; it is L = P_xy P_y^-1;
+* sums run over 2N + 1 points, i = 0..2N (the paper writes 2n + 1 as the upper index).
+
+Process noise is per second (``q_diag``) and scaled by dt. filterpy's UKF update
+(P - K S K^T) is not symmetric-preserving, so the base class symmetrizes and guards P after
+every step (long-run test: 100 000 steps).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+from ..models.thevenin import TheveninModel
+from .base import Estimator
+from .filterpy_state import FilterpyState
+
+
+class T2rcUkf(FilterpyState, Estimator):
+    """UKF on the 2-RC Thevenin model (SoC is a state)."""
+
+    name = "t2rc_ukf"
+    state_names = ("soc", "v1_v", "v2_v")
+    soc_index = 0
+    default_tuning = {
+        "q_diag": (1.0e-10, 1.0e-6, 1.0e-6),  # per second: SoC^2/s, V^2/s, V^2/s
+        "r": 4.0e-4,  # V^2: (20 mV)^2, ADC noise plus the 2RC model's mismatch
+        "p0_v": 1.0e-4,  # V^2: initial branch-voltage variance
+        "alpha": 1.0,
+        "beta": 2.0,
+        "kappa": 0.0,
+    }
+
+    def _make_model(self) -> TheveninModel:
+        b = self.battery
+        return TheveninModel(
+            b.ocv_curve(), b.thevenin, b.capacity_ah, b.coulomb_efficiency_charge
+        )
+
+    def _init_state(self, soc: float, soc_var: float) -> None:
+        if not hasattr(self, "kf"):
+            self.model = self._make_model()
+            n = self.model.dim_x
+            points = MerweScaledSigmaPoints(
+                n, self.tuning["alpha"], self.tuning["beta"], self.tuning["kappa"]
+            )
+            self.kf = UnscentedKalmanFilter(
+                dim_x=n, dim_z=1, dt=0.1, hx=self._hx, fx=self._fx, points=points
+            )
+            self.kf.R = np.array([[self.tuning["r"]]])
+        n = self.model.dim_x
+        self.kf.x = self.model.rested_state(soc)
+        self.kf.P = np.diag([soc_var] + [self.tuning["p0_v"]] * (n - 1))
+
+    def _fx(self, x: np.ndarray, dt: float, current_a: float = 0.0, temp_c=None) -> np.ndarray:
+        return self.model.step(x, current_a, dt, temp_c)
+
+    def _hx(self, x: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
+        return np.array([self.model.terminal_voltage(x, current_a, temp_c)])
+
+    def _process_noise(self, dt_s: float) -> np.ndarray:
+        return np.diag(np.asarray(self.tuning["q_diag"], dtype=float) * dt_s)
+
+    def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
+        self.kf.Q = self._process_noise(dt_s)
+        self.kf.predict(dt=dt_s, current_a=current_a, temp_c=temp_c)
+
+    def _measurement_variance(self, current_a: float) -> float:
+        return float(self.tuning["r"])
+
+    def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
+        if self.t_last_s is None:
+            # First sample: sigma points for the update come from the initial x, P.
+            self.kf.sigmas_f = self.kf.points_fn.sigma_points(self.kf.x, self.kf.P)
+        r = np.array([[self._measurement_variance(current_a)]])
+        self.kf.update(np.array([voltage_v]), R=r, current_a=current_a, temp_c=temp_c)
+        innov = float(self.kf.y[0])
+        s = float(self.kf.S[0, 0])
+        return voltage_v - innov, innov, innov * innov / s
