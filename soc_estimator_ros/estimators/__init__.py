@@ -49,6 +49,8 @@ def make_estimator(
         known = sorted([*ESTIMATORS, *PRESETS])
         raise ValueError(f"unknown estimator {name!r}; known: {', '.join(known)}")
     if tuning is None:
+        if name in PRESETS and name not in battery.filters:
+            raise ValueError(f"{battery.name}: preset {name!r} needs a filters.{name} block")
         tuning = name if name in battery.filters else None
     if isinstance(tuning, str):
         if tuning not in battery.filters:

@@ -34,6 +34,11 @@ from ..conventions import SECONDS_PER_HOUR
 from ..params import BatteryParams
 
 
+#: A SoC variance past which nothing is known (std 1 for a quantity in [0, 1]); clipping never
+#: grows the variance beyond it.
+MAX_SOC_VAR = 1.0
+
+
 class StepStatus(str, Enum):
     """What an estimator did with one sample."""
 
@@ -227,7 +232,8 @@ class Estimator(ABC):
         if clipped != s:
             self.clip_count += 1
             self.x[i] = clipped
-            self.p[i, i] += (s - clipped) ** 2
+            # Grow the variance by the clipped amount, up to MAX_SOC_VAR ("no information").
+            self.p[i, i] += min((s - clipped) ** 2, max(MAX_SOC_VAR - self.p[i, i], 0.0))
 
     def _estimate(
         self, t_s: float, status: StepStatus, v_pred: float, innov: float, nis: float

@@ -25,7 +25,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from ..models.rc_saft import SaftRcModel
-from .base import Estimator
+from .base import MAX_SOC_VAR, Estimator
 from .filterpy_state import FilterpyState
 
 
@@ -63,9 +63,12 @@ class RcKf(FilterpyState, Estimator):
 
     @property
     def soc_var(self) -> float:
+        """Readout variance; a V_cb beyond the OCV table adds its excess (the clip shows)."""
         v_cb = float(self.kf.x[0])
-        _, std = self.curve.soc_at_with_std(v_cb, math.sqrt(max(self.kf.P[0, 0], 0.0)))
-        return std * std
+        soc, std = self.curve.soc_at_with_std(v_cb, math.sqrt(max(self.kf.P[0, 0], 0.0)))
+        excess_v = max(v_cb - self.curve.ocv_max_v, self.curve.ocv_min_v - v_cb, 0.0)
+        excess_soc = excess_v / self.curve.slope(soc)
+        return min(std * std + excess_soc * excess_soc, MAX_SOC_VAR)
 
     def _clip_soc(self) -> None:
         v_cb = float(self.kf.x[0])

@@ -69,6 +69,7 @@ class OcvCurve:
         self._c3 = [float(v) for v in coeffs[0]]
         self._c2 = [float(v) for v in coeffs[1]]
         self._c1 = [float(v) for v in coeffs[2]]
+        self._c3_a, self._c2_a, self._c1_a = coeffs[0].copy(), coeffs[1].copy(), coeffs[2].copy()
         deriv = pchip.derivative()
         self._slope_lo = float(deriv(soc_arr[0]))
         self._slope_hi = float(deriv(soc_arr[-1]))
@@ -102,10 +103,14 @@ class OcvCurve:
         return (3.0 * self._c3[i] * h + 2.0 * self._c2[i]) * h + self._c1[i]
 
     def ocv_array(self, soc: np.ndarray) -> np.ndarray:
-        """Vectorized :meth:`ocv` for arrays of SoC."""
-        soc = np.asarray(soc, dtype=float)
-        out = np.array([self.ocv(float(s)) for s in soc.ravel()], dtype=float)
-        return out.reshape(soc.shape)
+        """Vectorized :meth:`ocv` for arrays of SoC (same values, same linear extension)."""
+        s = np.asarray(soc, dtype=float)
+        x = self.soc_points
+        i = np.clip(np.searchsorted(x, s, side="right") - 1, 0, x.size - 2)
+        h = s - x[i]
+        v = ((self._c3_a[i] * h + self._c2_a[i]) * h + self._c1_a[i]) * h + self.ocv_points_v[i]
+        v = np.where(s < x[0], self._y[0] + self._ext_lo * (s - x[0]), v)
+        return np.where(s > x[-1], self._y[-1] + self._ext_hi * (s - x[-1]), v)
 
     # -- inverse -----------------------------------------------------------------------------
     def soc_at(self, ocv_v: float) -> float:

@@ -100,6 +100,18 @@ class ParamTable:
         v1 = r1[j] + ws * (r1[j + 1] - r1[j]) if ws else r1[j]
         return v0 + wt * (v1 - v0)
 
+    def at_array(self, soc: np.ndarray, temperature_c: float | None = None) -> np.ndarray:
+        """Vectorized :meth:`at` over an array of SoC at one temperature."""
+        grid = np.asarray(self.soc)
+        rows = self.values
+        if len(rows) == 1:
+            return np.interp(soc, grid, rows[0])
+        if temperature_c is None or temperature_c != temperature_c:
+            temperature_c = 25.0
+        i, wt = _bracket(self._t_list, temperature_c)
+        v0 = np.interp(soc, grid, rows[i])
+        return v0 + wt * (np.interp(soc, grid, rows[i + 1]) - v0)
+
     def as_array(self) -> np.ndarray:
         """The values as a ``(n_temperature, n_soc)`` array."""
         return np.asarray(self.values, dtype=float)

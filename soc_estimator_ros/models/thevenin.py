@@ -96,6 +96,28 @@ class TheveninModel:
             out[1 + i] = a * float(x[1 + i]) + r * (1.0 - a) * current_a
         return out
 
+    def step_batch(
+        self, xs: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
+    ) -> np.ndarray:
+        """:meth:`step` applied to every row of ``xs`` (shape ``(m, dim_x)``) at once."""
+        soc = xs[:, 0]
+        out = np.empty_like(xs)
+        eta = coulomb_efficiency(current_a, self.coulomb_efficiency_charge)
+        out[:, 0] = soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
+        for i, b in enumerate(self.params.branches):
+            r = b.r_ohm.at_array(soc, temperature_c)
+            a = np.exp(-dt_s / (r * b.c_f.at_array(soc, temperature_c)))
+            out[:, 1 + i] = a * xs[:, 1 + i] + r * (1.0 - a) * current_a
+        return out
+
+    def terminal_voltage_batch(
+        self, xs: np.ndarray, current_a: float, temperature_c: float | None = None
+    ) -> np.ndarray:
+        """:meth:`terminal_voltage` for every row of ``xs``."""
+        soc = xs[:, 0]
+        v = self.ocv.ocv_array(soc) - current_a * self.params.r0_ohm.at_array(soc, temperature_c)
+        return v - xs[:, 1:].sum(axis=1)
+
     def transition_jacobian(
         self, x: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
     ) -> np.ndarray:
