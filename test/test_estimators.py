@@ -224,3 +224,19 @@ def test_dcc_ekf_counts_coulombs_under_load_after_convergence() -> None:
     assert est.soc == pytest.approx(soc0 - 10.0 * 0.1 / 3600.0 / SLA.capacity_ah, abs=1e-12)
     out = est.step(200.2, 0.0, 12.55)  # rest: the EKF corrects again
     assert out.updated
+
+
+def test_batched_sigma_points_equal_filterpy_s() -> None:
+    from filterpy.kalman import MerweScaledSigmaPoints
+
+    from soc_estimator_ros.estimators.t2rc_ukf import BatchMerweScaledSigmaPoints
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(3, 3))
+    p = a @ a.T + 0.1 * np.eye(3)
+    x = rng.normal(size=3)
+    for alpha, kappa in ((1.0, 0.0), (0.3, 1.0)):
+        ref = MerweScaledSigmaPoints(3, alpha, 2.0, kappa)
+        ours = BatchMerweScaledSigmaPoints(3, alpha, 2.0, kappa)
+        assert np.allclose(ours.sigma_points(x, p), ref.sigma_points(x, p), atol=1e-12)
+        assert np.array_equal(ours.Wm, ref.Wm) and np.array_equal(ours.Wc, ref.Wc)

@@ -72,3 +72,9 @@ def test_bundled_curves_load(repo_root) -> None:
     for name in ("sla_12v5ah.yaml", "lfp_12v6ah.yaml"):
         curve = load_battery_params(repo_root / "config" / name).ocv_curve()
         assert curve.soc_at(curve.ocv(0.55)) == pytest.approx(0.55, abs=1e-9)
+
+
+def test_vectorized_ocv_matches_the_cubic_within_ten_microvolts() -> None:
+    soc = np.linspace(-0.3, 1.3, 20001)
+    exact = np.array([LFP.ocv(float(s)) for s in soc])
+    assert np.max(np.abs(LFP.ocv_array(soc) - exact)) < 1e-5

@@ -30,9 +30,17 @@ from .base import Estimator
 from .filterpy_state import FilterpyState
 
 
-def _cholesky_upper(a: np.ndarray) -> np.ndarray:
-    """Upper Cholesky factor (what filterpy's sigma points expect), via numpy's LAPACK call."""
-    return np.linalg.cholesky(a).T
+class BatchMerweScaledSigmaPoints(MerweScaledSigmaPoints):
+    """filterpy's Van der Merwe sigma points and weights, generated without a Python loop."""
+
+    def sigma_points(self, x, P):  # noqa: N803 (filterpy's names)
+        u = np.linalg.cholesky((self.lambda_ + self.n) * P)  # lower: columns are the offsets
+        x = np.asarray(x, dtype=float)
+        return np.vstack([x, x + u.T, x - u.T])
+
+    @property
+    def lambda_(self) -> float:
+        return self.alpha**2 * (self.n + self.kappa) - self.n
 
 
 class BatchUnscentedKalmanFilter(UnscentedKalmanFilter):
@@ -93,12 +101,8 @@ class T2rcUkf(FilterpyState, Estimator):
         if not hasattr(self, "kf"):
             self.model = self._make_model()
             n = self.model.dim_x
-            points = MerweScaledSigmaPoints(
-                n,
-                self.tuning["alpha"],
-                self.tuning["beta"],
-                self.tuning["kappa"],
-                sqrt_method=_cholesky_upper,
+            points = BatchMerweScaledSigmaPoints(
+                n, self.tuning["alpha"], self.tuning["beta"], self.tuning["kappa"]
             )
             self.kf = BatchUnscentedKalmanFilter(
                 dim_x=n, dim_z=1, dt=0.1, hx=self._hx, fx=self._fx, points=points

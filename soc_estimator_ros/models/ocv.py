@@ -69,7 +69,6 @@ class OcvCurve:
         self._c3 = [float(v) for v in coeffs[0]]
         self._c2 = [float(v) for v in coeffs[1]]
         self._c1 = [float(v) for v in coeffs[2]]
-        self._c3_a, self._c2_a, self._c1_a = coeffs[0].copy(), coeffs[1].copy(), coeffs[2].copy()
         deriv = pchip.derivative()
         self._slope_lo = float(deriv(soc_arr[0]))
         self._slope_hi = float(deriv(soc_arr[-1]))
@@ -78,6 +77,14 @@ class OcvCurve:
         self._ext_lo = max(self._slope_lo, min_slope)
         self._ext_hi = max(self._slope_hi, min_slope)
         self._n = len(self._x)
+        fine = np.linspace(soc_arr[0], soc_arr[-1], 4001)
+        far = 10.0  # SoC units beyond the table: further than any filter excursion
+        self._fine_soc = np.concatenate([[soc_arr[0] - far], fine, [soc_arr[-1] + far]])
+        self._fine_v = np.array(
+            [self._y[0] - self._ext_lo * far]
+            + [self.ocv(float(v)) for v in fine]
+            + [self._y[-1] + self._ext_hi * far]
+        )
 
     # -- forward -----------------------------------------------------------------------------
     def ocv(self, soc: float) -> float:
@@ -103,14 +110,14 @@ class OcvCurve:
         return (3.0 * self._c3[i] * h + 2.0 * self._c2[i]) * h + self._c1[i]
 
     def ocv_array(self, soc: np.ndarray) -> np.ndarray:
-        """Vectorized :meth:`ocv` for arrays of SoC (same values, same linear extension)."""
-        s = np.asarray(soc, dtype=float)
-        x = self.soc_points
-        i = np.clip(np.searchsorted(x, s, side="right") - 1, 0, x.size - 2)
-        h = s - x[i]
-        v = ((self._c3_a[i] * h + self._c2_a[i]) * h + self._c1_a[i]) * h + self.ocv_points_v[i]
-        v = np.where(s < x[0], self._y[0] + self._ext_lo * (s - x[0]), v)
-        return np.where(s > x[-1], self._y[-1] + self._ext_hi * (s - x[-1]), v)
+        """Vectorized :meth:`ocv` for arrays of SoC (the UKF's sigma points).
+
+        One ``np.interp`` over the cubic sampled every 1/4000 of the table span: the chord
+        error is at most max|OCV''| h^2 / 8, below 10 microvolts even on LFP's knees (test).
+        The grid's two far end points lie on the linear extensions, so outside the table the
+        result is the same straight line as :meth:`ocv`.
+        """
+        return np.interp(soc, self._fine_soc, self._fine_v)
 
     # -- inverse -----------------------------------------------------------------------------
     def soc_at(self, ocv_v: float) -> float:

@@ -1,0 +1,96 @@
+"""Accuracy of the estimators on the physics-simulated field-run bags (issue: estimators).
+
+The bags were made by PyBaMM's electrochemical models (tools/make_bags.py), never by this
+package's equivalent-circuit models, so these numbers measure the estimators, not the models'
+agreement with themselves. Each (bag, estimator, initial SoC) run happens once per test session
+(``runs`` fixture) and several tests read it.
+
+Bounds are the issue's targets, with the window and thresholds it states:
+* ``hybrid``: MAE <= 1.0 %, max <= 3 % after a 10-minute window, both chemistries; from a
+  +-30 % initial error, |error| < 2 % within 10 minutes and for the rest of the run;
+* ``t2rc_ukf`` with a correct start: MAE <= 1.0 %;
+* ``rc_kf``: the paper's finding, usable on SLA (seed 000: 2.2 % MAE) and poor on LFP.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from soc_estimator_ros.estimators import make_estimator
+from soc_estimator_ros.evaluation import Accuracy, accuracy, run_estimator
+from soc_estimator_ros.params import load_battery_params
+
+ROOT = Path(__file__).resolve().parents[1]
+BAGS = ROOT / "bags"
+BATTERY_FILES = {"sla": ROOT / "config" / "sla_12v5ah.yaml", "lfp": ROOT / "config" / "lfp_12v6ah.yaml"}
+FIELD_RUNS = sorted(p for p in BAGS.glob("*_field_run_*") if p.is_dir())
+WINDOW_S = 600.0  # the issue's 10-minute convergence window
+INITIAL_SOC_STD = 0.1  # what a user's guess is worth; the same for correct and wrong starts
+
+
+def chemistry_of(bag: Path) -> str:
+    return bag.name.split("_", 1)[0]
+
+
+@cache
+def series_of(bag: Path):
+    from soc_estimator_ros.bag_io import read_battery_bag
+
+    return read_battery_bag(bag)
+
+
+@cache
+def run(bag: Path, estimator: str, soc_offset: float) -> tuple[Accuracy, np.ndarray, np.ndarray]:
+    """Run ``estimator`` on ``bag`` from the reference SoC plus ``soc_offset`` (clipped)."""
+    series = series_of(bag)
+    battery = load_battery_params(BATTERY_FILES[chemistry_of(bag)])
+    soc0 = float(np.clip(series.soc_ref[0] + soc_offset, 0.0, 1.0))
+    est = make_estimator(estimator, battery, soc0, INITIAL_SOC_STD)
+    out = run_estimator(est, series)
+    acc = accuracy(out.t_s, out.soc, series.soc_ref, window_s=WINDOW_S)
+    return acc, out.t_s - out.t_s[0], out.soc - series.soc_ref
+
+
+pytestmark = pytest.mark.skipif(not FIELD_RUNS, reason="no field-run bags under bags/")
+
+
+@pytest.mark.parametrize("bag", FIELD_RUNS, ids=lambda p: p.name)
+def test_hybrid_correct_start(bag: Path) -> None:
+    acc, _, _ = run(bag, "hybrid", 0.0)
+    assert acc.mae <= 0.010, acc  # issue target: MAE <= 1.0 %
+    assert acc.max_abs <= 0.030, acc  # issue target: max <= 3 %
+
+
+@pytest.mark.parametrize("bag", FIELD_RUNS, ids=lambda p: p.name)
+def test_t2rc_ukf_correct_start(bag: Path) -> None:
+    acc, _, _ = run(bag, "t2rc_ukf", 0.0)
+    assert acc.mae <= 0.010, acc  # issue target: MAE <= 1.0 % with a correct start
+
+
+@pytest.mark.parametrize("offset", [+0.3, -0.3], ids=["plus30", "minus30"])
+@pytest.mark.parametrize("bag", FIELD_RUNS, ids=lambda p: p.name)
+def test_hybrid_converges_from_a_wrong_start(bag: Path, offset: float) -> None:
+    soc_ref0 = float(series_of(bag).soc_ref[0])
+    if not 0.0 <= soc_ref0 + offset <= 1.0:
+        pytest.skip(f"reference starts at {soc_ref0:.2f}: a {offset:+.0%} start is outside [0, 1]")
+    acc, t_rel, err = run(bag, "hybrid", offset)
+    after = t_rel >= WINDOW_S
+    # Issue target: |error| < 2 % within 10 minutes, and it stays there.
+    assert np.max(np.abs(err[after])) < 0.02, acc
+    assert acc.max_abs <= 0.030 and acc.mae <= 0.010, acc
+
+
+def test_rc_kf_reproduces_the_paper_finding() -> None:
+    """Seed 000: RC+KF is usable on SLA (2.2 % MAE there) and fails on LFP's flat OCV."""
+    sla = [run(b, "rc_kf", 0.0)[0] for b in FIELD_RUNS if chemistry_of(b) == "sla"]
+    lfp = [run(b, "rc_kf", 0.0)[0] for b in FIELD_RUNS if chemistry_of(b) == "lfp"]
+    if not sla or not lfp:
+        pytest.skip("needs field runs of both chemistries")
+    sla_mae = max(a.mae for a in sla)
+    lfp_mae = max(a.mae for a in lfp)
+    assert sla_mae <= 0.05, sla  # usable: within about twice the paper's 2.2 %
+    assert lfp_mae > sla_mae, (sla, lfp)  # and clearly worse on LFP's plateau
