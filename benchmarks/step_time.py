@@ -57,8 +57,10 @@ def main() -> int:
             times[k] = clock() - t0
         us = times / 1000.0
         mean_s = float(np.mean(times)) * 1e-9
-        print(f"{name:<10} {np.median(us):>10.1f} {np.percentile(us, 99):>10.1f} "
-              f"{0.1 / mean_s:>16.0f}")
+        print(
+            f"{name:<10} {np.median(us):>10.1f} {np.percentile(us, 99):>10.1f} "
+            f"{0.1 / mean_s:>16.0f}"
+        )
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak RSS: {rss_mb:.1f} MiB")
     return 0

@@ -26,7 +26,10 @@ from soc_estimator_ros.params import load_battery_params
 
 ROOT = Path(__file__).resolve().parents[1]
 BAGS = ROOT / "bags"
-BATTERY_FILES = {"sla": ROOT / "config" / "sla_12v5ah.yaml", "lfp": ROOT / "config" / "lfp_12v6ah.yaml"}
+BATTERY_FILES = {
+    "sla": ROOT / "config" / "sla_12v5ah.yaml",
+    "lfp": ROOT / "config" / "lfp_12v6ah.yaml",
+}
 FIELD_RUNS = sorted(p for p in BAGS.glob("*_field_run_*") if p.is_dir())
 WINDOW_S = 600.0  # the 10-minute convergence window
 INITIAL_SOC_STD = 0.1  # what a user's guess is worth; the same for correct and wrong starts

@@ -116,7 +116,9 @@ def test_ukf_on_a_linear_model_equals_the_kf(name: str) -> None:
             dt = t[k] - t[k - 1]
             a = [math.exp(-dt / tau) for tau in taus]
             f = np.diag([1.0, a[0], a[1]])
-            b = np.array([-dt / (3600.0 * battery.capacity_ah), 0.01 * (1 - a[0]), 0.02 * (1 - a[1])])
+            b = np.array(
+                [-dt / (3600.0 * battery.capacity_ah), 0.01 * (1 - a[0]), 0.02 * (1 - a[1])]
+            )
             q = np.diag(np.array(ukf.tuning["q_diag"]) * dt)
             kf.predict(u=np.array([current[k - 1]]), B=b.reshape(3, 1), F=f, Q=q)
         h = np.array([[1.4, -1.0, -1.0]])

@@ -36,7 +36,12 @@ def circuit_reference(p: RcModelParams, v0: float, times_s: np.ndarray, charge_a
     out = [(y[0], y[1], v_o(y, charge_a[0]))]
     for k in range(len(times_s) - 1):
         sol = solve_ivp(
-            rhs, (times_s[k], times_s[k + 1]), y, args=(charge_a[k],), rtol=1e-10, atol=1e-12,
+            rhs,
+            (times_s[k], times_s[k + 1]),
+            y,
+            args=(charge_a[k],),
+            rtol=1e-10,
+            atol=1e-12,
             method="LSODA",
         )
         y = sol.y[:, -1]
@@ -98,7 +103,7 @@ def test_paper_b31_typo_is_detected() -> None:
     m[2, 3] = b31_printed
     x_good = model.rested_state(12.5, 10.0)
     x_bad = x_good.copy()
-    for k in range(ref.shape[0] - 1):
+    for _k in range(ref.shape[0] - 1):
         e = expm(m * 7.0)
         x_bad = e[:3, :3] @ x_bad - e[:3, 3] * 10.0
         x_good = model.step(x_good, 10.0, 10.0, 7.0)

@@ -33,7 +33,6 @@ import numpy as np
 from ..conventions import SECONDS_PER_HOUR
 from ..params import BatteryParams
 
-
 #: A SoC variance past which nothing is known (std 1 for a quantity in [0, 1]); clipping never
 #: grows the variance beyond it.
 MAX_SOC_VAR = 1.0

@@ -91,4 +91,3 @@ class RcKf(FilterpyState, Estimator):
         innov = float(np.ravel(self.kf.y)[0])
         s = float(np.ravel(self.kf.S)[0])
         return v_pred, innov, innov * innov / s
-

@@ -122,7 +122,9 @@ class SaftRcModel:
         g_jump = np.array([0.0, 0.0, -self.r_eq_ohm])
         return f, g_hold, g_jump
 
-    def step(self, x: np.ndarray, current_a: float, next_current_a: float, dt_s: float) -> np.ndarray:
+    def step(
+        self, x: np.ndarray, current_a: float, next_current_a: float, dt_s: float
+    ) -> np.ndarray:
         """State after ``dt_s`` of ``current_a``, with the current then stepping to ``next``."""
         f, g_hold, g_jump = self.discretize(dt_s)
         return f @ x + g_hold * current_a + g_jump * (next_current_a - current_a)

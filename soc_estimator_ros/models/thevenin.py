@@ -75,7 +75,9 @@ class TheveninModel:
         """Series resistance in ohms."""
         return self.params.r0_ohm.at(soc, temperature_c)
 
-    def branch_at(self, i: int, soc: float, temperature_c: float | None = None) -> tuple[float, float]:
+    def branch_at(
+        self, i: int, soc: float, temperature_c: float | None = None
+    ) -> tuple[float, float]:
         """(R_i in ohms, tau_i = R_i C_i in seconds) of branch ``i``."""
         b = self.params.branches[i]
         r = b.r_ohm.at(soc, temperature_c)

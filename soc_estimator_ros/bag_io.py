@@ -1,0 +1,224 @@
+"""Read and write the bridge's rosbag2 recordings (MCAP or sqlite3, compressed or not).
+
+The bag contract (bags/README.md): ``/battery/state`` carries ``sensor_msgs/BatteryState``
+samples from the STM32 bridge (current NEGATIVE while discharging, as ROS defines it);
+``/battery/soc_reference`` carries the reference SoC as ``sensor_msgs/BatteryState`` (its
+``percentage``) with the same stamps. This module uses ``rosbags`` only, no rclpy, so replay,
+identification and tests run without ROS.
+
+On reading, the current is converted to the core's convention (positive while discharging);
+samples are returned in header-stamp order.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.typesys import Stores, get_typestore
+
+from .conventions import core_current_from_ros, ros_current_from_core
+
+STATE_TOPIC = "/battery/state"
+REFERENCE_TOPIC = "/battery/soc_reference"
+BATTERY_STATE = "sensor_msgs/msg/BatteryState"
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_MSG = TYPESTORE.types[BATTERY_STATE]
+_HEADER = TYPESTORE.types["std_msgs/msg/Header"]
+_TIME = TYPESTORE.types["builtin_interfaces/msg/Time"]
+
+
+class BagError(ValueError):
+    """A bag that cannot be used, with its path and what is wrong."""
+
+    def __init__(self, path: Path | str, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = Path(path)
+        self.problem = problem
+
+
+@dataclass(frozen=True)
+class BatterySeries:
+    """Samples of one recording, aligned, in stamp order.
+
+    Attributes:
+        t_s: seconds since the first sample.
+        stamp_ns: absolute header stamps (ns).
+        current_a: current in A, core convention (positive while discharging).
+        voltage_v: pack voltage in V.
+        temperature_c: temperature in degC (NaN where the bridge sent none).
+        soc_ref: reference SoC (fraction) at each sample, or None without a reference topic.
+        design_capacity_ah: the bridge's design capacity (NaN if not sent).
+        technology: ``power_supply_technology`` of the first sample.
+        reference_capacity_ah: capacity behind the reference SoC, or None.
+    """
+
+    t_s: np.ndarray
+    stamp_ns: np.ndarray
+    current_a: np.ndarray
+    voltage_v: np.ndarray
+    temperature_c: np.ndarray
+    soc_ref: np.ndarray | None = None
+    design_capacity_ah: float = math.nan
+    technology: int = 0
+    reference_capacity_ah: float | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+def _stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def read_battery_bag(
+    path: Path | str,
+    state_topic: str = STATE_TOPIC,
+    reference_topic: str | None = REFERENCE_TOPIC,
+) -> BatterySeries:
+    """Read a recording; :class:`BagError` for anything that makes it unusable.
+
+    The reference topic is optional: without it ``soc_ref`` is None. Its samples are matched
+    to the state samples by stamp; state samples without a reference get NaN.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BagError(p, "no such bag")
+    try:
+        with AnyReader([p], default_typestore=TYPESTORE) as reader:
+            topics = {c.topic: c.msgtype for c in reader.connections}
+            if state_topic not in topics:
+                have = ", ".join(sorted(topics)) or "none"
+                raise BagError(p, f"no topic {state_topic} (topics in the bag: {have})")
+            for topic in (state_topic, reference_topic):
+                if topic in topics and topics[topic] != BATTERY_STATE:
+                    raise BagError(p, f"{topic} is {topics[topic]}, expected {BATTERY_STATE}")
+            wanted = [c for c in reader.connections if c.topic in (state_topic, reference_topic)]
+            states: list[tuple[int, float, float, float, float, int]] = []
+            refs: dict[int, tuple[float, float]] = {}
+            for conn, _, raw in reader.messages(connections=wanted):
+                msg = reader.deserialize(raw, conn.msgtype)
+                if conn.topic == state_topic:
+                    states.append(
+                        (
+                            _stamp_ns(msg),
+                            float(msg.current),
+                            float(msg.voltage),
+                            float(msg.temperature),
+                            float(msg.design_capacity),
+                            int(msg.power_supply_technology),
+                        )
+                    )
+                else:
+                    refs[_stamp_ns(msg)] = (float(msg.percentage), float(msg.capacity))
+    except BagError:
+        raise
+    except Exception as exc:  # rosbags raises many types for damaged files; name them all here
+        raise BagError(p, f"cannot be read ({type(exc).__name__}: {exc})") from exc
+    if not states:
+        raise BagError(p, f"topic {state_topic} has no messages")
+    states.sort(key=lambda s: s[0])
+    stamps = np.array([s[0] for s in states], dtype=np.int64)
+    soc_ref = None
+    ref_capacity = None
+    if reference_topic is not None and refs:
+        soc_ref = np.array([refs.get(int(s), (math.nan, math.nan))[0] for s in stamps])
+        ref_capacity = next(iter(refs.values()))[1]
+    return BatterySeries(
+        t_s=(stamps - stamps[0]) * 1e-9,
+        stamp_ns=stamps,
+        current_a=np.array([core_current_from_ros(s[1]) for s in states]),
+        voltage_v=np.array([s[2] for s in states]),
+        temperature_c=np.array([s[3] for s in states]),
+        soc_ref=soc_ref,
+        design_capacity_ah=states[0][4],
+        technology=states[0][5],
+        reference_capacity_ah=ref_capacity,
+    )
+
+
+def battery_state_message(
+    stamp_ns: int,
+    voltage_v: float,
+    current_a: float,
+    *,
+    temperature_c: float = math.nan,
+    percentage: float = math.nan,
+    charge_ah: float = math.nan,
+    capacity_ah: float = math.nan,
+    design_capacity_ah: float = math.nan,
+    technology: int = 0,
+    frame_id: str = "battery",
+    location: str = "",
+    serial_number: str = "",
+    present: bool = True,
+) -> Any:
+    """A rosbags ``BatteryState`` with the core's current converted to ROS's sign."""
+    ros_current = ros_current_from_core(current_a)
+    if ros_current < 0.0:
+        status = _MSG.POWER_SUPPLY_STATUS_DISCHARGING
+    elif ros_current > 0.0:
+        status = _MSG.POWER_SUPPLY_STATUS_CHARGING
+    else:
+        status = _MSG.POWER_SUPPLY_STATUS_NOT_CHARGING
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return _MSG(
+        header=_HEADER(stamp=_TIME(sec=sec, nanosec=nsec), frame_id=frame_id),
+        voltage=float(voltage_v),
+        temperature=float(temperature_c),
+        current=float(ros_current),
+        charge=float(charge_ah),
+        capacity=float(capacity_ah),
+        design_capacity=float(design_capacity_ah),
+        percentage=float(percentage),
+        power_supply_status=status,
+        power_supply_health=_MSG.POWER_SUPPLY_HEALTH_UNKNOWN,
+        power_supply_technology=int(technology),
+        present=present,
+        cell_voltage=np.array([], dtype=np.float32),
+        cell_temperature=np.array([], dtype=np.float32),
+        location=location,
+        serial_number=serial_number,
+    )
+
+
+def _stamped(index: int, conn: Any, msgs: Iterable[Any]) -> Iterator[tuple[int, int, Any, Any]]:
+    for msg in msgs:
+        yield _stamp_ns(msg), index, conn, msg
+
+
+def write_battery_bag(
+    path: Path | str,
+    topics: Sequence[tuple[str, Iterable[Any]]],
+    storage: str = "mcap",
+    compress: bool = True,
+) -> None:
+    """Write ``BatteryState`` messages to a new bag.
+
+    Args:
+        path: the bag directory to create (must not exist).
+        topics: ``(topic, messages)`` pairs, each in stamp order; a message's header stamp is
+            its bag time.
+        storage: ``"mcap"`` or ``"sqlite3"``.
+        compress: zstd file compression (rosbag2's ``--compression-mode file``).
+    """
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    writer = Writer(Path(path), version=Writer.VERSION_LATEST, storage_plugin=plugin)
+    if compress:
+        writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+    with writer:
+        streams = [
+            _stamped(index, writer.add_connection(topic, BATTERY_STATE, typestore=TYPESTORE), msgs)
+            for index, (topic, msgs) in enumerate(topics)
+        ]
+        # Interleave the topics in stamp order, as a recorder would.
+        for stamp, _, conn, msg in heapq.merge(*streams, key=lambda item: item[:2]):
+            writer.write(conn, stamp, TYPESTORE.serialize_cdr(msg, BATTERY_STATE))

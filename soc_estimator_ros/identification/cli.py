@@ -1,0 +1,165 @@
+"""``soc_identify``: identify a battery parameter file from a pulse-discharge test.
+
+    soc_identify INPUT --chemistry {lfp,sla} [--capacity-ah X] [--slow-discharge INPUT2]
+                 [--template FILE] [--current-sign ...] [--topic T] --output params.yaml
+                 [--plot fit.png]
+
+INPUT is a rosbag2 bag (the bridge's BatteryState topic) or a CSV
+``time_s,current_a,voltage_v[,temperature_c]``. The test must start from a full pack.
+Everything not identified (name, limits, filter tunings) comes from ``--template``
+(default: the bundled file of the chemistry), so regenerating a bundled file keeps its tunings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..bag_io import STATE_TOPIC, BagError, BatterySeries, read_battery_bag
+from ..conventions import CurrentSign
+from ..params import ParamFileError, battery_params_to_dict, load_battery_params
+from .identify import IdentificationResult, identify
+from .segment import IdentificationError
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
+TEMPLATES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
+
+
+def load_test(path: Path, topic: str, sign: CurrentSign) -> BatterySeries:
+    """A bag (directory) or a CSV file."""
+    from ..replay import InputError, read_csv
+
+    if not path.exists():
+        raise IdentificationError(f"{path}: no such file or bag")
+    if path.is_file() and path.suffix.lower() == ".csv":
+        try:
+            return read_csv(path, sign)
+        except InputError as exc:
+            raise IdentificationError(str(exc)) from exc
+    return read_battery_bag(path, state_topic=topic, reference_topic=None)
+
+
+def report(result: IdentificationResult) -> str:
+    """The per-pulse fit report (seed 000 Fig. 7 as a table)."""
+    lines = [
+        f"capacity: {result.capacity_ah:.4f} Ah ({result.capacity_source})",
+        f"{'pulse':>5} {'SoC':>6} {'R0_mohm':>8} {'R1_mohm':>8} {'tau1_s':>8} {'R2_mohm':>8} "
+        f"{'tau2_s':>8} {'rmse_lin_mV':>11} {'rmse_mV':>8}",
+    ]
+    for n, f in enumerate(result.pulses, 1):
+        lines.append(
+            f"{n:>5} {f.soc:6.3f} {1000 * f.r0_ohm:8.2f} {1000 * f.r1_ohm:8.2f} {f.tau1_s:8.1f} "
+            f"{1000 * f.r2_ohm:8.2f} {f.tau2_s:8.1f} {1000 * f.rmse_linear_v:11.2f} "
+            f"{1000 * f.rmse_v:8.2f}"
+        )
+    rc = result.battery.rc_model
+    tau_s = float(np.median([r.tau_s for r in result.rc]))
+    lines.append(
+        f"RC model: R_b = R_s = {1000 * rc.r_b_ohm:.2f} mohm, R_t = {1000 * rc.r_t_ohm:.2f} mohm, "
+        f"C_s = {rc.c_s_f:.1f} F (tau_s median {tau_s:.2f} s), "
+        f"C_b = {rc.c_b_f:.0f} F"
+    )
+    lines += [f"note: {n}" for n in result.notes]
+    return "\n".join(lines)
+
+
+def plot_fit(path: Path, test: BatterySeries, result: IdentificationResult) -> None:
+    """Seed 000 Figs. 6-7: measured vs simulated voltage and the parameters over SoC."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .identify import simulate_voltage
+
+    sim = simulate_voltage(result.battery, test, 1.0)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 10))
+    t_h = test.t_s / 3600.0
+    axes[0].plot(t_h, test.voltage_v, "0.5", lw=0.8, label="measured")
+    axes[0].plot(t_h, sim, "C0", lw=0.8, label="identified 2RC model")
+    axes[0].set_xlabel("time (h)")
+    axes[0].set_ylabel("voltage (V)")
+    axes[0].legend()
+    soc = [f.soc for f in result.pulses]
+    for key, label in (("r0_ohm", "R0"), ("r1_ohm", "R1"), ("r2_ohm", "R2")):
+        axes[1].plot(soc, [1000 * getattr(f, key) for f in result.pulses], "o-", label=label)
+    axes[1].set_ylabel("resistance (mohm)")
+    axes[1].set_xlabel("SoC")
+    axes[1].legend()
+    axes[2].semilogy(soc, [f.tau1_s for f in result.pulses], "o-", label="tau1")
+    axes[2].semilogy(soc, [f.tau2_s for f in result.pulses], "o-", label="tau2")
+    axes[2].set_ylabel("time constant (s)")
+    axes[2].set_xlabel("SoC")
+    axes[2].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="soc_identify", description=__doc__.splitlines()[0])
+    ap.add_argument("input", type=Path, help="pulse test: rosbag2 bag or CSV")
+    ap.add_argument("--chemistry", required=True, choices=sorted(TEMPLATES))
+    ap.add_argument("--capacity-ah", type=float, help="pack capacity (default: measured)")
+    ap.add_argument("--slow-discharge", type=Path, help="slow discharge (C/20) to the cut-off")
+    ap.add_argument("--template", type=Path, help="file to take non-identified values from")
+    ap.add_argument(
+        "--current-sign",
+        choices=[s.value for s in CurrentSign],
+        default=CurrentSign.DISCHARGE_POSITIVE.value,
+        help="sign convention of a CSV",
+    )
+    ap.add_argument("--topic", default=STATE_TOPIC, help="BatteryState topic in a bag")
+    ap.add_argument("--output", type=Path, required=True, help="parameter YAML to write")
+    ap.add_argument("--plot", type=Path, help="PNG of the fits")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    sign = CurrentSign(args.current_sign)
+    try:
+        template = load_battery_params(args.template or CONFIG_DIR / TEMPLATES[args.chemistry])
+        if template.chemistry != args.chemistry:
+            raise IdentificationError(
+                f"template {args.template} is {template.chemistry}, not {args.chemistry}"
+            )
+        test = load_test(args.input, args.topic, sign)
+        slow = load_test(args.slow_discharge, args.topic, sign) if args.slow_discharge else None
+        result = identify(
+            test,
+            template,
+            args.capacity_ah,
+            slow,
+            progress=lambda msg: print(f"soc_identify: {msg}", file=sys.stderr, flush=True),
+        )
+    except (IdentificationError, BagError, ParamFileError) as exc:
+        print(f"soc_identify: error: {exc}", file=sys.stderr)
+        return 2
+    print(report(result))
+    command = shlex.join(["soc_identify", *(argv if argv is not None else sys.argv[1:])])
+    header = (
+        f"# Generated by soc_identify from {args.input.name}"
+        + (f" and {args.slow_discharge.name}" if args.slow_discharge else "")
+        + f'.\n# Regenerate: {command}\n# Schema: README "Battery parameter files".\n'
+    )
+    battery = result.battery
+    data = battery_params_to_dict(battery)
+    data["source"] = f"identified by soc_identify from {args.input.name}"
+    text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
+    args.output.write_text(header + text)
+    load_battery_params(args.output)  # what was written loads as is
+    print(f"wrote {args.output}")
+    if args.plot:
+        plot_fit(args.plot, test, result)
+        print(f"plot: {args.plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

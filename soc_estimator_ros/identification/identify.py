@@ -1,0 +1,211 @@
+"""Whole-test identification: a pulse test (and optionally a slow discharge) -> BatteryParams."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..bag_io import BatterySeries
+from ..models.rc_saft import RcModelParams
+from ..models.tables import ParamTable
+from ..models.thevenin import RcBranch, TheveninModel, TheveninParams
+from ..params import BatteryParams, OcvTable
+from .fit import (
+    PulseFit,
+    RcFit,
+    charge_removed_ah,
+    fit_pulse,
+    fit_rc_pulse,
+    monotone_ocv_table,
+)
+from .segment import IdentificationError, segment_pulses
+
+
+@dataclass
+class IdentificationResult:
+    """What :func:`identify` found, and the parameter set built from it."""
+
+    battery: BatteryParams
+    pulses: list[PulseFit]
+    rc: list[RcFit]
+    capacity_ah: float
+    capacity_source: str
+    ocv_rest_points: list[tuple[float, float]]
+    notes: list[str] = field(default_factory=list)
+
+
+def zero_current_offset(
+    series: BatterySeries, rest_threshold_a: float = 0.15, min_rest_s: float = 60.0
+) -> float:
+    """The current sensor's offset, read where the pack rests.
+
+    Rests are stretches of at least ``min_rest_s`` with |I| below the threshold (single loaded
+    samples that dip below it through noise are not rests); the offset is the mean over them
+    (the mean, because the noise dithers the 40 mA quantizer: a median snaps to a step). A Hall
+    sensor's offset (tens of mA) is a tenth of a C/20 current: coulomb counting a slow
+    discharge without this misstates the capacity by as much (measured on the bags).
+    """
+    quiet = np.abs(series.current_a) < rest_threshold_a
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(int), [0]])))
+    picked = []
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        if series.t_s[stop - 1] - series.t_s[start] >= min_rest_s:
+            picked.append(series.current_a[start:stop])
+    if not picked:
+        return 0.0
+    return float(np.mean(np.concatenate(picked)))
+
+
+def rested_voltage(series: BatterySeries, k: int, window_s: float = 60.0) -> float:
+    """Mean voltage over the ``window_s`` ending at sample ``k`` (a rest's end, seed 000 §2.3).
+
+    One sample carries the ADC's quantization step (3.9 mV on a 12-bit, 16 V input) and its
+    noise; the mean over a minute of rest dithers both away.
+    """
+    lo = int(np.searchsorted(series.t_s, series.t_s[k] - window_s))
+    return float(np.mean(series.voltage_v[lo : k + 1]))
+
+
+def offset_corrected(series: BatterySeries, notes: list[str], label: str) -> BatterySeries:
+    """``series`` with its rest-measured current offset removed (the note says how much)."""
+    offset = zero_current_offset(series)
+    notes.append(f"{label}: current offset {1000 * offset:+.1f} mA measured at rest, removed")
+    return replace(series, current_a=series.current_a - offset)
+
+
+def _capacity(test, slow, capacity_ah, template) -> tuple[float, str]:
+    if capacity_ah is not None:
+        return capacity_ah, "given"
+    if slow is not None:
+        return float(charge_removed_ah(slow)[-1]), "slow discharge, full to its end"
+    return template.capacity_ah, "template (not measured: pass --capacity-ah or a slow discharge)"
+
+
+def _ocv_table(test, pulses, soc_at, slow, capacity_ah, notes) -> tuple[np.ndarray, np.ndarray]:
+    """Rest points (seed 000 §2.3), merged with a slow-discharge curve when given (Fig. 8)."""
+    idx = [p.rest_before for p in pulses] + [pulses[-1].rest_end]
+    rest_soc = np.array([soc_at[k] for k in idx])
+    rest_v = np.array([rested_voltage(test, k) for k in idx])
+    if slow is None:
+        soc, ocv = rest_soc, rest_v
+    else:
+        loaded = slow.current_a > 0.5 * np.median(slow.current_a[slow.current_a > 0.01])
+        s_soc = 1.0 - charge_removed_ah(slow)[loaded] / capacity_ah
+        s_v = slow.voltage_v[loaded]
+        order = np.argsort(s_soc)
+        s_soc, s_v = s_soc[order], s_v[order]
+        # The slow discharge runs below the OCV by its IR drop and polarization; the offset
+        # that puts it through each rest point is interpolated between them (held beyond).
+        offset = rest_v - np.interp(rest_soc, s_soc, s_v)
+        r_order = np.argsort(rest_soc)
+        # Grid points closer than half a grid step to a rest point are dropped: a rest point
+        # and a shifted-curve point 0.1 % apart would put a steep kink into the PCHIP table.
+        base = np.linspace(max(s_soc[0], 0.0), 1.0, 41)
+        half_step = 0.5 * (base[1] - base[0])
+        far = np.min(np.abs(base[:, None] - rest_soc[None, :]), axis=1) > half_step
+        grid = np.unique(np.concatenate([base[far], rest_soc]))
+        ocv = np.interp(grid, s_soc, s_v) + np.interp(grid, rest_soc[r_order], offset[r_order])
+        soc = grid
+        notes.append(
+            f"OCV: slow discharge shifted through {rest_soc.size} rest points (offset "
+            f"{1000 * offset.min():.0f}..{1000 * offset.max():.0f} mV)"
+        )
+    soc, ocv, n_fixed = monotone_ocv_table(soc, ocv)
+    if n_fixed:
+        notes.append(f"OCV: {n_fixed} point(s) raised to keep the table strictly increasing")
+    return soc, ocv
+
+
+def identify(
+    test: BatterySeries,
+    template: BatteryParams,
+    capacity_ah: float | None = None,
+    slow: BatterySeries | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> IdentificationResult:
+    """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test starting full."""
+    notes: list[str] = []
+    test = offset_corrected(test, notes, "pulse test")
+    if slow is not None:
+        slow = offset_corrected(slow, notes, "slow discharge")
+    capacity, cap_source = _capacity(test, slow, capacity_ah, template)
+    if not capacity > 0:
+        raise IdentificationError(f"capacity must be > 0 Ah, got {capacity}")
+    pulses = segment_pulses(test)
+    soc_at = 1.0 - charge_removed_ah(test) / capacity
+    ocv_soc, ocv_v = _ocv_table(test, pulses, soc_at, slow, capacity, notes)
+    fits: list[PulseFit] = []
+    rcs: list[RcFit] = []
+    for n, p in enumerate(pulses, 1):
+        if progress:
+            progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
+        fits.append(fit_pulse(test, p, soc_at))
+        rcs.append(fit_rc_pulse(test, p))
+    by_soc = sorted(fits, key=lambda f: f.soc)
+
+    def table(values: list[float]) -> ParamTable:
+        return ParamTable.from_arrays([f.soc for f in by_soc], values)
+
+    thevenin = TheveninParams(
+        r0_ohm=table([f.r0_ohm for f in by_soc]),
+        branches=(
+            RcBranch(
+                table([f.r1_ohm for f in by_soc]), table([f.tau1_s / f.r1_ohm for f in by_soc])
+            ),
+            RcBranch(
+                table([f.r2_ohm for f in by_soc]), table([f.tau2_s / f.r2_ohm for f in by_soc])
+            ),
+        ),
+    )
+    span_v = float(ocv_v[-1] - ocv_v[0])
+    span_soc = float(ocv_soc[-1] - ocv_soc[0])
+    rc = RcModelParams(
+        c_b_f=3600.0 * capacity * span_soc / span_v,
+        c_s_f=float(np.median([r.c_s_f for r in rcs])),
+        r_b_ohm=float(np.median([r.r_b_ohm for r in rcs])),
+        r_s_ohm=float(np.median([r.r_s_ohm for r in rcs])),
+        r_t_ohm=float(np.median([r.r_t_ohm for r in rcs])),
+    )
+    battery = replace(
+        template,
+        capacity_ah=float(capacity),
+        ocv=OcvTable(
+            soc=tuple(float(s) for s in ocv_soc), voltage_v=tuple(float(v) for v in ocv_v)
+        ),
+        rc_model=rc,
+        thevenin=thevenin,
+    )
+    rest_points = [
+        (float(soc_at[p.rest_before]), rested_voltage(test, p.rest_before)) for p in pulses
+    ]
+    return IdentificationResult(battery, fits, rcs, float(capacity), cap_source, rest_points, notes)
+
+
+def simulate_voltage(battery: BatteryParams, series: BatterySeries, soc0: float) -> np.ndarray:
+    """Open-loop 2-RC model voltage over a recording, from ``soc0`` with the measured current."""
+    model = TheveninModel(
+        battery.ocv_curve(),
+        battery.thevenin,
+        battery.capacity_ah,
+        battery.coulomb_efficiency_charge,
+    )
+    x = model.rested_state(soc0)
+    out = np.empty(series.t_s.size)
+    temps = series.temperature_c
+    for k in range(series.t_s.size):
+        temp = None if math.isnan(temps[k]) else float(temps[k])
+        if k:
+            x = model.step(
+                x, float(series.current_a[k - 1]), float(series.t_s[k] - series.t_s[k - 1]), temp
+            )
+        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp)
+    return out
+
+
+def voltage_rmse(battery: BatteryParams, series: BatterySeries, soc0: float) -> float:
+    """RMSE (V) of :func:`simulate_voltage` against the recorded voltage."""
+    v = simulate_voltage(battery, series, soc0)
+    return float(np.sqrt(np.mean((v - series.voltage_v) ** 2)))

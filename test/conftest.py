@@ -1,0 +1,59 @@
+"""Test-wide set-up: DDS stays on loopback, with a ROS_DOMAIN_ID of this test run's own.
+
+The environment is set at import time, before any test module can import rclpy. Parallel runs
+on one machine (and the pytest-xdist workers of one run) get different domain ids, so their
+nodes never hear each other; ``SOC_TEST_ROS_DOMAIN_ID`` pins the id when needed.
+"""
+
+from __future__ import annotations
+
+import os
+import zlib
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+BAGS_DIR = REPO_ROOT / "bags"
+
+# Fast DDS derives its UDP ports from the domain id; 1..101 is safe on every Linux host.
+_DOMAIN_MIN, _DOMAIN_MAX = 1, 101
+
+
+def _test_domain_id() -> int:
+    pinned = os.environ.get("SOC_TEST_ROS_DOMAIN_ID")
+    if pinned:
+        return int(pinned)
+    span = _DOMAIN_MAX - _DOMAIN_MIN + 1
+    worker = os.environ.get("PYTEST_XDIST_WORKER")  # "gw0", "gw1", ... under pytest-xdist
+    if worker is None:
+        return _DOMAIN_MIN + os.getpid() % span
+    # One base per run (shared by its workers), then consecutive ids, one per worker.
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID", str(os.getppid()))
+    base = zlib.crc32(run.encode()) % max(1, span - workers)
+    return _DOMAIN_MIN + (base + int(worker.removeprefix("gw"))) % span
+
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["ROS_DOMAIN_ID"] = str(_test_domain_id())
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    """The repository root (a checkout, not an installed copy)."""
+    return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def bags_dir() -> Path:
+    """The directory of bundled rosbag2 recordings (``bags/<name>/``)."""
+    return BAGS_DIR
+
+
+def bag_path(name: str) -> Path:
+    """A bundled bag by name; skips the calling test when that bag is not in the checkout."""
+    path = BAGS_DIR / name
+    if not (path / "metadata.yaml").is_file():
+        pytest.skip(f"bundled bag {name!r} not present in {BAGS_DIR}")
+    return path

@@ -1,0 +1,191 @@
+"""The bundled bags keep the bridge's contract (bags/README.md), and bag_io reads what it must.
+
+Every bag is read with rosbags (through ``bag_io``) and compared with its machine-readable
+``bag.yaml``. Small bags written here test the error paths.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from rosbags.highlevel import AnyReader
+
+from soc_estimator_ros.bag_io import (
+    REFERENCE_TOPIC,
+    STATE_TOPIC,
+    TYPESTORE,
+    BagError,
+    battery_state_message,
+    read_battery_bag,
+    write_battery_bag,
+)
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+ALL = sorted(p.parent for p in BAGS.glob("*/bag.yaml"))
+
+
+@cache
+def meta(bag: Path) -> dict:
+    return yaml.safe_load((bag / "bag.yaml").read_text())
+
+
+@cache
+def series(bag: Path):
+    return read_battery_bag(bag)
+
+
+def test_the_bag_set_is_complete() -> None:
+    names = {b.name for b in ALL}
+    for chem in ("sla", "lfp"):
+        assert f"{chem}_pulse_test" in names
+        assert f"{chem}_slow_discharge" in names
+        runs = [meta(b) for b in ALL if b.name.startswith(f"{chem}_field_run_")]
+        assert len(runs) >= 3
+        assert any(m["soc_start"] < 0.95 for m in runs), "one run starts part-charged"
+        assert any(m["ambient_temperature_c"] != 25.0 for m in runs), "one run at another T"
+    storages = {meta(b)["storage"] for b in ALL}
+    assert storages == {"mcap", "sqlite3"}  # the package must read both
+
+
+def test_bags_stay_under_40_mb() -> None:
+    total = sum(f.stat().st_size for b in ALL for f in b.rglob("*") if f.is_file())
+    assert total < 40e6, total
+
+
+@pytest.mark.parametrize("bag", ALL, ids=lambda p: p.name)
+def test_bag_contract(bag: Path) -> None:
+    m = meta(bag)
+    with AnyReader([bag], default_typestore=TYPESTORE) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert topics == {
+        STATE_TOPIC: "sensor_msgs/msg/BatteryState",
+        REFERENCE_TOPIC: "sensor_msgs/msg/BatteryState",
+    }
+    assert counts[STATE_TOPIC] == counts[REFERENCE_TOPIC] == m["samples"]
+    s = series(bag)
+    assert np.all(np.diff(s.stamp_ns) > 0)  # strictly monotone header stamps
+    assert not np.any(np.isnan(s.soc_ref))  # every state sample has its reference
+    # Duration and SoC range as documented (bag.yaml rounds to 0.1 s and 1e-4).
+    assert s.t_s[-1] == pytest.approx(m["duration_s"], abs=0.1)
+    assert s.soc_ref[0] == pytest.approx(m["soc_start"], abs=1e-4)
+    assert s.soc_ref[-1] == pytest.approx(m["soc_end"], abs=1e-4)
+    assert s.reference_capacity_ah == pytest.approx(m["reference_capacity_ah"], abs=1e-4)
+    # Current sign: ROS current negative on discharge, so the core current is mostly positive
+    # and the SoC falls.
+    assert np.mean(s.current_a) > 0 and s.soc_ref[-1] < s.soc_ref[0]
+    assert s.technology == (5 if m["chemistry"] == "lfp" else 0)  # LIFE / UNKNOWN (no VRLA)
+    if m["kind"] == "field_run":
+        dt = np.diff(s.t_s)
+        assert np.allclose(dt, 0.1, atol=1e-6), "field runs are 10 Hz"
+        limit = 0.40 if m["chemistry"] == "sla" else 0.20
+        assert s.soc_ref[-1] <= limit + 0.005  # down to the manufacturer's limit
+        assert np.max(s.current_a) > 20.0  # drive motors: tens of amperes at peak
+
+
+@pytest.mark.parametrize("bag", [b for b in ALL if "pulse_test" in b.name], ids=lambda p: p.name)
+def test_pulse_test_rests_fall_with_soc(bag: Path) -> None:
+    s = series(bag)
+    loaded = s.current_a > 0.5
+    # The voltage just before each pulse starts (end of each rest).
+    starts = np.flatnonzero(loaded[1:] & ~loaded[:-1]) + 1
+    rest_v = s.voltage_v[starts - 1]
+    assert len(starts) >= 6
+    assert np.all(np.diff(rest_v) < 0), rest_v
+    # Each pulse removes about 10 % SoC (seed 000 §2.1).
+    drops = -np.diff(s.soc_ref[starts])
+    assert np.allclose(drops, 0.1, atol=0.015), drops
+
+
+@pytest.mark.parametrize("bag", ALL, ids=lambda p: p.name)
+def test_voltage_answers_current_steps_in_the_same_sample(bag: Path) -> None:
+    with AnyReader([bag], default_typestore=TYPESTORE) as reader:
+        conn = [c for c in reader.connections if c.topic == REFERENCE_TOPIC]
+        truth = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conn)]
+    i = -np.array([m.current for m in truth])  # noise-free, core sign
+    v = np.array([m.voltage for m in truth])
+    di, dv = np.diff(i), np.diff(v)
+    steps = np.abs(di) > 0.2  # the smallest designed step: C/20 starting (0.25 A)
+    assert steps.any()
+    # Same sample, opposite direction, and at least 2 mOhm worth (the packs' resistances are
+    # tens of mOhm, so a lagging or frozen voltage fails this by an order of magnitude).
+    assert np.all(dv[steps] * di[steps] < 0)
+    assert np.all(np.abs(dv[steps]) > 0.002 * np.abs(di[steps]))
+
+
+# -- bag_io on small bags written here -------------------------------------------------------
+def _messages(n: int, t0_ns: int = 1_000_000_000):
+    return [
+        battery_state_message(t0_ns + k * 100_000_000, 12.5 - 0.001 * k, 2.0, temperature_c=20.0)
+        for k in range(n)
+    ]
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+@pytest.mark.parametrize("compress", [False, True])
+def test_round_trip(tmp_path: Path, storage: str, compress: bool) -> None:
+    ref = [
+        battery_state_message(
+            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
+            12.5,
+            2.0,
+            percentage=0.9,
+            capacity_ah=5.0,
+        )
+        for m in _messages(20)
+    ]
+    write_battery_bag(
+        tmp_path / "b", [(STATE_TOPIC, _messages(20)), (REFERENCE_TOPIC, ref)], storage, compress
+    )
+    s = read_battery_bag(tmp_path / "b")
+    assert len(s) == 20
+    assert np.allclose(s.t_s, np.arange(20) * 0.1)
+    assert np.allclose(s.current_a, 2.0)  # 2 A discharge written as -2 A in ROS
+    assert np.allclose(s.voltage_v, 12.5 - 0.001 * np.arange(20), atol=1e-6)  # float32
+    assert np.allclose(s.soc_ref, 0.9) and s.reference_capacity_ah == pytest.approx(5.0)
+
+
+def test_missing_topic_names_what_exists(tmp_path: Path) -> None:
+    write_battery_bag(tmp_path / "b", [("/other", _messages(5))])
+    with pytest.raises(BagError, match=r"no topic /battery/state \(topics in the bag: /other\)"):
+        read_battery_bag(tmp_path / "b")
+
+
+def test_empty_topic(tmp_path: Path) -> None:
+    write_battery_bag(tmp_path / "b", [(STATE_TOPIC, [])])
+    with pytest.raises(BagError, match="has no messages"):
+        read_battery_bag(tmp_path / "b")
+
+
+def test_not_a_bag(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match="no such bag"):
+        read_battery_bag(tmp_path / "nothing")
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "metadata.yaml").write_text("not: a bag\n")
+    with pytest.raises(BagError, match="cannot be read"):
+        read_battery_bag(tmp_path / "junk")
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_truncated_bag(tmp_path: Path, storage: str) -> None:
+    write_battery_bag(tmp_path / "b", [(STATE_TOPIC, _messages(500))], storage, compress=False)
+    data = next(f for f in (tmp_path / "b").iterdir() if f.name != "metadata.yaml")
+    raw = data.read_bytes()
+    data.write_bytes(raw[: len(raw) // 3])
+    with pytest.raises(BagError, match="cannot be read"):
+        read_battery_bag(tmp_path / "b")
+
+
+def test_wrong_message_type(tmp_path: Path) -> None:
+    src = tmp_path / "b"
+    write_battery_bag(src, [(STATE_TOPIC, _messages(3))])
+    meta_path = src / "metadata.yaml"
+    meta_path.write_text(
+        meta_path.read_text().replace("sensor_msgs/msg/BatteryState", "std_msgs/msg/Float32")
+    )
+    with pytest.raises(BagError, match="BatteryState|cannot be read"):
+        read_battery_bag(src)

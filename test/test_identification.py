@@ -1,0 +1,218 @@
+"""soc_identify against known truth, its error paths, and on the physics-simulated bags.
+
+The synthetic pulse test is made from KNOWN 2-RC Thevenin parameters with the package's own
+model: that is fine here, it tests the identifier's recovery, not an estimator's accuracy.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag
+from soc_estimator_ros.identification.cli import main as identify_main
+from soc_estimator_ros.identification.identify import identify, voltage_rmse
+from soc_estimator_ros.identification.segment import IdentificationError, segment_pulses
+from soc_estimator_ros.models import OcvCurve, ParamTable, RcBranch, TheveninModel, TheveninParams
+from soc_estimator_ros.params import load_battery_params
+
+ROOT = Path(__file__).resolve().parents[1]
+SLA = load_battery_params(ROOT / "config" / "sla_12v5ah.yaml")
+TRUE = {"r0": 0.030, "r1": 0.012, "tau1": 25.0, "r2": 0.020, "tau2": 700.0}
+
+
+def synthetic_pulse_test(seed: int = 0, noise: bool = True) -> BatterySeries:
+    """Seed 000 protocol at 10 Hz: 10 min rest, six 30-min 1 A pulses with 1-h rests."""
+    rng = np.random.default_rng(seed)
+    ocv = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.85])
+    th = TheveninParams(
+        ParamTable.constant(TRUE["r0"]),
+        (
+            RcBranch(
+                ParamTable.constant(TRUE["r1"]), ParamTable.constant(TRUE["tau1"] / TRUE["r1"])
+            ),
+            RcBranch(
+                ParamTable.constant(TRUE["r2"]), ParamTable.constant(TRUE["tau2"] / TRUE["r2"])
+            ),
+        ),
+    )
+    model = TheveninModel(ocv, th, capacity_ah=5.0)
+    segments = [(600.0, 0.0)] + [(1800.0, 1.0), (3600.0, 0.0)] * 6
+    current = np.concatenate([np.full(int(d * 10), i) for d, i in segments])
+    t = np.arange(current.size) * 0.1
+    v = np.empty(current.size)
+    x = model.rested_state(1.0)
+    for k in range(current.size):
+        if k:
+            x = model.step(x, current[k - 1], 0.1)
+        v[k] = model.terminal_voltage(x, current[k])
+    i_meas = current
+    if noise:
+        # Sensor noise like the bags' (no gain error: a gain error biases every resistance
+        # by the same fraction, which no identification can see).
+        i_meas = np.round((current + rng.normal(0, 0.01, current.size)) / 0.01) * 0.01
+        v = np.round((v + rng.normal(0, 0.002, v.size)) / (16 / 4096)) * (16 / 4096)
+    return BatterySeries(
+        t_s=t,
+        stamp_ns=(t * 1e9).astype(np.int64),
+        current_a=i_meas,
+        voltage_v=v,
+        temperature_c=np.full(t.size, 25.0),
+    )
+
+
+@cache
+def synthetic_result(seed: int = 0, noise: bool = True):
+    return identify(synthetic_pulse_test(seed, noise), SLA, capacity_ah=5.0)
+
+
+FIELDS = {"r0": "r0_ohm", "r1": "r1_ohm", "tau1": "tau1_s", "r2": "r2_ohm", "tau2": "tau2_s"}
+BOUND = {"r0": 0.02, "r1": 0.02, "r2": 0.02, "tau1": 0.05, "tau2": 0.05}  # the issue's bounds
+
+
+def test_recovers_known_parameters_exactly_without_noise() -> None:
+    res = synthetic_result(noise=False)
+    assert len(res.pulses) == 6
+    for f in res.pulses:
+        for key, attr in FIELDS.items():
+            # Noise-free, only the OCV curvature inside the 3-min onset window is unmodelled:
+            # 0.5 %, four times tighter than the issue asks.
+            assert getattr(f, attr) == pytest.approx(TRUE[key], rel=5e-3), (key, f)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_recovers_known_parameters_with_sensor_noise(seed: int) -> None:
+    """Bag-like sensors (2 mV noise + 3.9 mV ADC steps, 10 mA current noise). R0 and the slow
+    branch meet the issue's bounds pulse by pulse. The fast branch (12 mV that relaxes in 25 s)
+    is noise-limited per pulse: about 2 % (R1) and 4 % (tau1) standard deviation, measured over
+    18 pulses; it meets the bounds averaged over the test's six pulses (same true values)."""
+    res = synthetic_result(seed)
+    for f in res.pulses:
+        for key in ("r0", "r2", "tau2"):
+            assert getattr(f, FIELDS[key]) == pytest.approx(TRUE[key], rel=BOUND[key]), (key, f)
+        assert f.rmse_v < 0.003  # the fit's residual is the sensor noise (about 2.3 mV)
+    for key in ("r1", "tau1"):
+        mean = float(np.mean([getattr(f, FIELDS[key]) for f in res.pulses]))
+        assert mean == pytest.approx(TRUE[key], rel=BOUND[key]), key
+
+
+def test_ocv_points_from_rests_and_rc_model() -> None:
+    res = synthetic_result()
+    curve = res.battery.ocv_curve()
+    # The rest before each pulse is 1 h after the previous one: relaxed to within ~1 mV.
+    for soc in (0.9, 0.7, 0.5):
+        truth = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.85]).ocv(soc)
+        assert curve.ocv(soc) == pytest.approx(truth, abs=0.01)
+    rc = res.battery.rc_model
+    assert rc.r_b_ohm == pytest.approx(rc.r_s_ohm)  # eq. 7
+    assert rc.r_t_ohm == pytest.approx(rc.r_b_ohm / 0.75 - rc.r_b_ohm / 2)  # eq. 8
+
+
+def test_errors_are_clear() -> None:
+    good = synthetic_pulse_test(noise=False)
+    flat = BatterySeries(
+        good.t_s, good.stamp_ns, good.current_a * 0.0, good.voltage_v, good.temperature_c
+    )
+    with pytest.raises(IdentificationError, match="no pulses"):
+        segment_pulses(flat)
+    charge = BatterySeries(
+        good.t_s, good.stamp_ns, -good.current_a, good.voltage_v, good.temperature_c
+    )
+    with pytest.raises(IdentificationError, match="wrong current sign"):
+        segment_pulses(charge)
+    n = 100
+    short = BatterySeries(
+        good.t_s[:n],
+        good.stamp_ns[:n],
+        good.current_a[:n],
+        good.voltage_v[:n],
+        good.temperature_c[:n],
+    )
+    with pytest.raises(IdentificationError, match="too short"):
+        segment_pulses(short)
+    k = 6000 + 18000 + 100  # cut inside the first rest: no 10-minute rest after any pulse
+    cut = BatterySeries(
+        good.t_s[6000:k],
+        good.stamp_ns[6000:k],
+        good.current_a[6000:k],
+        good.voltage_v[6000:k],
+        good.temperature_c[6000:k],
+    )
+    with pytest.raises(IdentificationError, match="rest"):
+        segment_pulses(cut)
+
+
+def test_cli_on_csv_with_sign_flag(tmp_path: Path, capsys) -> None:
+    test = synthetic_pulse_test(noise=False)
+    csv_path = tmp_path / "pulse.csv"
+    rows = ["time_s,current_a,voltage_v,temperature_c"] + [
+        f"{t:.1f},{-i:.4f},{v:.5f},25.0"  # charge-positive logger: discharge is negative
+        for t, i, v in zip(test.t_s, test.current_a, test.voltage_v, strict=True)
+    ]
+    csv_path.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "p.yaml"
+    assert (
+        identify_main(
+            [
+                str(csv_path),
+                "--chemistry",
+                "sla",
+                "--capacity-ah",
+                "5",
+                "--current-sign",
+                "charge_positive",
+                "--output",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    params = load_battery_params(out)
+    assert params.filters == SLA.filters  # the template's tunings pass through unchanged
+    assert params.capacity_ah == pytest.approx(5.0)
+    assert "pulse" in capsys.readouterr().out
+    # Without the flag the pulses look like charge: a one-line error, exit code 2.
+    assert identify_main([str(csv_path), "--chemistry", "sla", "--output", str(out)]) == 2
+    assert "wrong current sign" in capsys.readouterr().err
+
+
+# -- on the physics-simulated bags ------------------------------------------------------------
+BAGS = ROOT / "bags"
+
+
+@cache
+def bag_identification(chem: str):
+    pulse = BAGS / f"{chem}_pulse_test"
+    slow = BAGS / f"{chem}_slow_discharge"
+    template = load_battery_params(
+        ROOT / "config" / f"{'sla_12v5ah' if chem == 'sla' else 'lfp_12v6ah'}.yaml"
+    )
+    return identify(read_battery_bag(pulse), template, slow=read_battery_bag(slow))
+
+
+@pytest.mark.parametrize("chem", ["sla", "lfp"])
+def test_identified_model_reproduces_the_bags(chem: str) -> None:
+    if not (BAGS / f"{chem}_pulse_test").exists():
+        pytest.skip(f"no {chem} pulse-test bag")
+    res = bag_identification(chem)
+    pulse = read_battery_bag(BAGS / f"{chem}_pulse_test")
+    # Issue bounds: pulse test <= 15 mV, field runs <= 30 mV (open loop from the true SoC).
+    assert voltage_rmse(res.battery, pulse, 1.0) <= 0.015
+    for run in sorted(BAGS.glob(f"{chem}_field_run_*")):
+        series = read_battery_bag(run)
+        rmse = voltage_rmse(res.battery, series, float(series.soc_ref[0]))
+        assert rmse <= 0.030 or math.isnan(rmse), (run.name, rmse)
+
+
+def test_bundled_files_are_the_identified_ones() -> None:
+    """config/*.yaml hold what soc_identify produces from the bundled bags (their header says
+    how to regenerate them)."""
+    for name in ("sla_12v5ah.yaml", "lfp_12v6ah.yaml"):
+        text = (ROOT / "config" / name).read_text()
+        assert text.startswith("# Generated by soc_identify"), name
+        assert yaml.safe_load(text)["source"].startswith("identified by soc_identify")
