@@ -33,6 +33,14 @@ BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 _MSG = TYPESTORE.types[BATTERY_STATE]
 _HEADER = TYPESTORE.types["std_msgs/msg/Header"]
+
+#: ``power_supply_technology`` per chemistry of the parameter files (Jazzy's constants: LIFE is
+#: 4, VRLA 8, LION 2; read from the message definition, never typed by hand).
+TECHNOLOGY_BY_CHEMISTRY: dict[str, int] = {
+    "lfp": int(_MSG.POWER_SUPPLY_TECHNOLOGY_LIFE),
+    "sla": int(_MSG.POWER_SUPPLY_TECHNOLOGY_VRLA),
+    "li_ion": int(_MSG.POWER_SUPPLY_TECHNOLOGY_LION),
+}
 _TIME = TYPESTORE.types["builtin_interfaces/msg/Time"]
 
 

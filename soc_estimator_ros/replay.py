@@ -6,7 +6,7 @@
 INPUT is a rosbag2 bag (MCAP or sqlite3; ``--topic``, default ``/battery/state``), a CSV
 (``time_s,current_a,voltage_v[,temperature_c][,soc_ref]`` with ``--current-sign``), or a
 directory of bags (processed in parallel over the cores). Without ``--params`` the battery file
-is chosen from the bag's ``power_supply_technology`` (LIFE -> LFP, else SLA). With a reference
+is chosen from the bag's ``power_supply_technology`` (LIFE -> LFP, VRLA -> SLA). With a reference
 SoC in the input, MAE, RMSE, max error (after a 10-minute window) and the convergence time are
 printed.
 """
@@ -24,14 +24,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .bag_io import STATE_TOPIC, BagError, BatterySeries, read_battery_bag
+from .bag_io import (
+    STATE_TOPIC,
+    TECHNOLOGY_BY_CHEMISTRY,
+    BagError,
+    BatterySeries,
+    read_battery_bag,
+)
 from .conventions import CurrentSign, core_current_from
 from .estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
 from .evaluation import Accuracy, EstimateSeries, accuracy, run_estimator
 from .params import BatteryParams, ParamFileError, load_battery_params
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
-TECH_LIFE = 5
 INITIAL_SOC_STD = 0.1
 
 
@@ -81,8 +86,14 @@ def load_input(path: Path, topic: str, sign: CurrentSign) -> BatterySeries:
 
 def default_battery_file(series: BatterySeries) -> Path:
     """The bundled battery file matching the bag's technology."""
-    name = "lfp_12v6ah.yaml" if series.technology == TECH_LIFE else "sla_12v5ah.yaml"
-    return CONFIG_DIR / name
+    files = {"lfp": "lfp_12v6ah.yaml", "sla": "sla_12v5ah.yaml"}
+    for chemistry, technology in TECHNOLOGY_BY_CHEMISTRY.items():
+        if series.technology == technology and chemistry in files:
+            return CONFIG_DIR / files[chemistry]
+    raise InputError(
+        f"power_supply_technology {series.technology} matches no bundled battery file "
+        "(LIFE -> lfp_12v6ah.yaml, VRLA -> sla_12v5ah.yaml): pass --params"
+    )
 
 
 @dataclass(frozen=True)

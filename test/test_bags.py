@@ -17,6 +17,7 @@ from rosbags.highlevel import AnyReader
 from soc_estimator_ros.bag_io import (
     REFERENCE_TOPIC,
     STATE_TOPIC,
+    TECHNOLOGY_BY_CHEMISTRY,
     TYPESTORE,
     BagError,
     battery_state_message,
@@ -78,7 +79,7 @@ def test_bag_contract(bag: Path) -> None:
     # Current sign: ROS current negative on discharge, so the core current is mostly positive
     # and the SoC falls.
     assert np.mean(s.current_a) > 0 and s.soc_ref[-1] < s.soc_ref[0]
-    assert s.technology == (5 if m["chemistry"] == "lfp" else 0)  # LIFE / UNKNOWN (no VRLA)
+    assert s.technology == TECHNOLOGY_BY_CHEMISTRY[m["chemistry"]]  # LIFE = 4 / VRLA = 8
     if m["kind"] == "field_run":
         dt = np.diff(s.t_s)
         assert np.allclose(dt, 0.1, atol=1e-6), "field runs are 10 Hz"

@@ -17,7 +17,8 @@ from soc_estimator_ros.params import (
 )
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
-BUNDLED = sorted(CONFIG.glob("*.yaml"))
+# Battery files (the node's ROS params file, soc_estimator_node.yaml, lives beside them).
+BUNDLED = sorted(p for p in CONFIG.glob("*.yaml") if "schema_version" in p.read_text())
 
 
 def base() -> dict:

@@ -44,11 +44,10 @@ from soc_estimator_ros.bag_io import (  # noqa: E402
     battery_state_message,
     write_battery_bag,
 )
+from soc_estimator_ros.bag_io import TECHNOLOGY_BY_CHEMISTRY as TECH  # noqa: E402
 
 EPOCH_NS = 1_777_881_600 * 1_000_000_000  # 2026-05-04 08:00:00 UTC, fixed for determinism
 SAMPLE_S = 0.1  # the bridge's 10 Hz
-TECH_LIFE = 5  # sensor_msgs/BatteryState POWER_SUPPLY_TECHNOLOGY_LIFE
-TECH_UNKNOWN = 0  # Jazzy's BatteryState has no lead-acid constant
 
 
 @dataclass(frozen=True)
@@ -73,8 +72,8 @@ class Pack:
 PACKS = {
     # Sulzer2019's "17 Ah" cell delivers 21.75 Ah at C/20 to 1.75 V; SLA packs are rated at
     # C/20, so the current is scaled by 21.75/5 to make the pack a 5 Ah (C/20) pack.
-    "sla": Pack("sla", 6, 21.75, 5.0, 10.5, 0.40, TECH_UNKNOWN, "AJC-12V5AH-SIM"),
-    "lfp": Pack("lfp", 4, 2.3, 6.0, 10.0, 0.20, TECH_LIFE, "ROYPOW-12V6AH-SIM"),
+    "sla": Pack("sla", 6, 21.75, 5.0, 10.5, 0.40, TECH["sla"], "AJC-12V5AH-SIM"),
+    "lfp": Pack("lfp", 4, 2.3, 6.0, 10.0, 0.20, TECH["lfp"], "ROYPOW-12V6AH-SIM"),
 }
 
 

@@ -1,0 +1,212 @@
+"""Saving and restoring the node's SoC across restarts (no ROS).
+
+The state file is a small YAML mapping::
+
+    format: 1
+    soc: 0.7312            # fraction
+    soc_var: 1.2e-05       # fraction^2
+    stamp_s: 1778152330.1  # header stamp of the last accepted sample (s, ROS time)
+    estimator: hybrid
+    battery: AJC 12 V 5 Ah SLA (seed 000)
+
+:func:`save_state` writes it atomically: a temporary file in the same directory is written,
+flushed and ``fsync``-ed, then ``os.replace``-d over the old file, and the directory is
+``fsync``-ed, so a power cut leaves either the old or the new file, never a torn one.
+
+:func:`load_state` validates every field (:class:`StateFileError` names the file and the
+problem). :func:`resume_decision` says whether a saved state may be resumed from at a given
+time: only when it exists, is valid, belongs to the same battery and is younger than
+``resume_max_age_s``; otherwise it returns the reason, which the node logs before it falls back
+to an OCV initialization.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+FORMAT_VERSION = 1
+
+
+class StateFileError(ValueError):
+    """A state file that cannot be used, with its path and the problem."""
+
+    def __init__(self, path: Path | str, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = Path(path)
+        self.problem = problem
+
+
+@dataclass(frozen=True)
+class SavedState:
+    """What is saved: the SoC, its variance, when, by which estimator, for which battery.
+
+    Attributes:
+        soc: SoC fraction in [0, 1].
+        soc_var: SoC variance (fraction^2, > 0).
+        stamp_s: header stamp of the last sample behind the estimate (s).
+        estimator: estimator name.
+        battery: battery name (``BatteryParams.name``).
+    """
+
+    soc: float
+    soc_var: float
+    stamp_s: float
+    estimator: str
+    battery: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """The YAML mapping written to the file."""
+        return {
+            "format": FORMAT_VERSION,
+            "soc": float(self.soc),
+            "soc_var": float(self.soc_var),
+            "stamp_s": float(self.stamp_s),
+            "estimator": str(self.estimator),
+            "battery": str(self.battery),
+        }
+
+
+def _fsync_dir(directory: Path) -> None:
+    """fsync a directory so a rename in it is durable (no-op where unsupported)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def save_state(path: Path | str, state: SavedState) -> None:
+    """Write ``state`` to ``path`` atomically (creates the directory); ``OSError`` on failure."""
+    p = Path(path).expanduser()
+    p.parent.mkdir(parents=True, exist_ok=True)
+    text = "# soc_estimator_node state (persistence.py); safe to delete\n" + yaml.safe_dump(
+        state.as_dict(), sort_keys=False
+    )
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp_name, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp_name)
+        raise
+    _fsync_dir(p.parent)
+
+
+def _number(path: Path, raw: dict[str, Any], key: str) -> float:
+    value = raw.get(key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise StateFileError(path, f"{key} = {value!r}: expected a number")
+    if not math.isfinite(float(value)):
+        raise StateFileError(path, f"{key} = {value!r}: expected a finite number")
+    return float(value)
+
+
+def _text(path: Path, raw: dict[str, Any], key: str) -> str:
+    value = raw.get(key)
+    if not isinstance(value, str) or not value:
+        raise StateFileError(path, f"{key} = {value!r}: expected a non-empty string")
+    return value
+
+
+def load_state(path: Path | str) -> SavedState:
+    """Read and validate a state file; :class:`StateFileError` for anything wrong with it."""
+    p = Path(path).expanduser()
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise StateFileError(p, "no such file") from exc
+    except OSError as exc:
+        raise StateFileError(p, f"cannot be read ({exc})") from exc
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise StateFileError(p, f"not valid YAML ({str(exc).splitlines()[0]})") from exc
+    if not isinstance(raw, dict):
+        raise StateFileError(p, "expected a YAML mapping")
+    if raw.get("format") != FORMAT_VERSION:
+        raise StateFileError(p, f"format = {raw.get('format')!r}: expected {FORMAT_VERSION}")
+    soc = _number(p, raw, "soc")
+    if not 0.0 <= soc <= 1.0:
+        raise StateFileError(p, f"soc = {soc!r}: expected a fraction in [0, 1]")
+    soc_var = _number(p, raw, "soc_var")
+    if not 0.0 < soc_var <= 1.0:
+        raise StateFileError(p, f"soc_var = {soc_var!r}: expected a variance in (0, 1]")
+    return SavedState(
+        soc=soc,
+        soc_var=soc_var,
+        stamp_s=_number(p, raw, "stamp_s"),
+        estimator=_text(p, raw, "estimator"),
+        battery=_text(p, raw, "battery"),
+    )
+
+
+@dataclass(frozen=True)
+class ResumeDecision:
+    """Whether to resume from a saved state; ``reason`` says why (for the log) either way."""
+
+    state: SavedState | None
+    reason: str
+
+    @property
+    def resume(self) -> bool:
+        """True when ``state`` may be used."""
+        return self.state is not None
+
+
+def resume_decision(
+    path: Path | str,
+    now_s: float,
+    resume_max_age_s: float,
+    battery: str,
+    *,
+    future_tolerance_s: float = 1.0,
+) -> ResumeDecision:
+    """Decide whether the state in ``path`` may be resumed from at time ``now_s`` (s).
+
+    The age is ``now_s - state.stamp_s``; the state is used only if ``0 <= age <=
+    resume_max_age_s`` (a state up to ``future_tolerance_s`` "in the future" counts as age 0:
+    stamps of one source may jitter), and only for the same ``battery``.
+    """
+    try:
+        state = load_state(path)
+    except StateFileError as exc:
+        return ResumeDecision(None, f"no usable saved state: {exc}")
+    if state.battery != battery:
+        return ResumeDecision(
+            None, f"saved state in {path} is for battery {state.battery!r}, not {battery!r}"
+        )
+    age_s = now_s - state.stamp_s
+    if age_s < -future_tolerance_s:
+        return ResumeDecision(
+            None,
+            f"saved state in {path} is {-age_s:.1f} s in the future of the first sample "
+            "(clock changed?)",
+        )
+    if age_s > resume_max_age_s:
+        return ResumeDecision(
+            None,
+            f"saved state in {path} is {age_s:.1f} s old, older than resume_max_age_s = "
+            f"{resume_max_age_s:g} s",
+        )
+    return ResumeDecision(
+        state,
+        f"resuming from {path}: SoC {state.soc:.4f} (std {math.sqrt(state.soc_var):.4f}) saved "
+        f"{max(age_s, 0.0):.1f} s before the first sample by {state.estimator}",
+    )

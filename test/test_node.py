@@ -1,0 +1,671 @@
+"""soc_estimator_node over real rclpy (DDS on loopback, see conftest.py).
+
+Every test builds the node under test and a helper node ("io") in one rclpy context and spins
+both with one executor from the test thread (``spin_once`` loops with timeouts, no threads).
+Lossless delivery: the node's input uses ``input_reliability: reliable`` and the helper
+publishes with reliable QoS in batches, waiting after each batch until the node has answered
+every sample, so no queue can overflow; then "outputs == inputs" tests the node, not DDS.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import BatteryState  # noqa: E402
+from std_msgs.msg import Float32, Float64MultiArray  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag  # noqa: E402
+from soc_estimator_ros.conventions import ros_current_from_core  # noqa: E402
+from soc_estimator_ros.estimators import make_estimator  # noqa: E402
+from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
+from soc_estimator_ros.input_gate import Verdict  # noqa: E402
+from soc_estimator_ros.node import (  # noqa: E402
+    SocEstimatorNode,
+    decode_estimate,
+    estimate_labels,
+    main,
+)
+from soc_estimator_ros.params import load_battery_params  # noqa: E402
+from soc_estimator_ros.persistence import SavedState, load_state, save_state  # noqa: E402
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SLA = REPO_ROOT / "config" / "sla_12v5ah.yaml"
+S = 1_000_000_000
+T0 = 1_778_151_600 * S
+RELIABLE = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE
+)
+BATCH = 100
+
+
+@pytest.fixture(scope="module")
+def ctx() -> Iterable[Context]:
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture(scope="module")
+def battery():
+    return load_battery_params(SLA)
+
+
+def state_msg(
+    stamp_ns: int,
+    voltage_v: float,
+    current_a: float,
+    temperature_c: float = 25.0,
+    present: bool = True,
+) -> BatteryState:
+    """A bridge-like BatteryState; ``current_a`` in the core's sign (positive = discharge)."""
+    msg = BatteryState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), S)
+    msg.header.frame_id = "battery"
+    msg.voltage = float(voltage_v)
+    msg.current = float(ros_current_from_core(current_a))
+    msg.temperature = float(temperature_c)
+    msg.charge = msg.capacity = msg.percentage = math.nan
+    msg.design_capacity = 5.0
+    msg.present = present
+    msg.serial_number = "SIM-1"
+    return msg
+
+
+def series_msgs(series: BatterySeries, n: int) -> list[BatteryState]:
+    return [
+        state_msg(
+            int(series.stamp_ns[k]),
+            float(series.voltage_v[k]),
+            float(series.current_a[k]),
+            float(series.temperature_c[k]),
+        )
+        for k in range(n)
+    ]
+
+
+def head(series: BatterySeries, n: int) -> BatterySeries:
+    """The first ``n`` samples (same t_s origin)."""
+    return replace(
+        series,
+        t_s=series.t_s[:n],
+        stamp_ns=series.stamp_ns[:n],
+        current_a=series.current_a[:n],
+        voltage_v=series.voltage_v[:n],
+        temperature_c=series.temperature_c[:n],
+        soc_ref=None if series.soc_ref is None else series.soc_ref[:n],
+    )
+
+
+class Harness:
+    """The node under test plus an io node publishing its input and recording its outputs."""
+
+    def __init__(self, ctx: Context, tmp_path: Path, **params: Any) -> None:
+        self.ctx = ctx
+        self.ns = f"/t_{uuid.uuid4().hex[:8]}"
+        defaults = {
+            "input_reliability": "reliable",
+            "qos_depth": 1000,
+            "state_file": str(tmp_path / "state.yaml"),
+            "initial_soc": "0.8",
+        }
+        defaults.update(params)
+        overrides = [Parameter(k, value=v) for k, v in defaults.items()]
+        self.node = SocEstimatorNode(namespace=self.ns, context=ctx, parameter_overrides=overrides)
+        self.io = rclpy.create_node(f"io_{uuid.uuid4().hex[:8]}", namespace=self.ns, context=ctx)
+        self.pub = self.io.create_publisher(BatteryState, "battery/state", RELIABLE)
+        self.soc: list[BatteryState] = []
+        self.est: list[Float64MultiArray] = []
+        self.diag: list[tuple[float, DiagnosticArray]] = []
+        self.io.create_subscription(BatteryState, "battery/soc", self.soc.append, RELIABLE)
+        self.io.create_subscription(
+            Float64MultiArray, "battery/soc_estimate", self.est.append, RELIABLE
+        )
+        self.io.create_subscription(
+            DiagnosticArray, "/diagnostics", lambda m: self.diag.append((time.monotonic(), m)), 10
+        )
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.io)
+        self.destroyed = False
+        assert self.spin_until(
+            lambda: (
+                (self.pub.get_subscription_count() >= 1 or bool(defaults.get("current_topic")))
+                and self.node._soc_pub.get_subscription_count() >= 1
+                and self.node._est_pub.get_subscription_count() >= 1
+            ),
+            timeout_s=10.0,
+        ), "topics did not match"
+
+    def spin_until(self, done: Callable[[], bool], timeout_s: float = 10.0) -> bool:
+        end = time.monotonic() + timeout_s
+        while not done():
+            if time.monotonic() > end:
+                return False
+            self.executor.spin_once(timeout_sec=0.01)
+        return True
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def send(self, msgs: list[BatteryState], expect_outputs: bool = True) -> None:
+        """Publish in batches; wait until the node answered each batch (or judged it)."""
+        for start in range(0, len(msgs), BATCH):
+            batch = msgs[start : start + BATCH]
+            want_out = len(self.soc) + len(batch)
+            want_judged = self.judged() + len(batch)
+            for m in batch:
+                self.pub.publish(m)
+            if expect_outputs:
+                ok = self.spin_until(
+                    lambda w=want_out: len(self.soc) >= w and len(self.est) >= w, 30.0
+                )
+            else:
+                ok = self.spin_until(lambda w=want_judged: self.judged() >= w, 30.0)
+            assert ok, f"node answered {len(self.soc)} of {want_out} samples"
+
+    def judged(self) -> int:
+        return sum(self.node.gate.counts.values())
+
+    def set_params(self, **params: Any) -> list:
+        """Set parameters through the node's parameter service (as ``ros2 param set`` does)."""
+        client = AsyncParameterClient(self.io, self.node.get_fully_qualified_name())
+        assert self.spin_until(client.services_are_ready, 10.0)
+        future = client.set_parameters([Parameter(k, value=v) for k, v in params.items()])
+        assert self.spin_until(future.done, 10.0)
+        return list(future.result().results)
+
+    def trigger(self, service: str) -> Trigger.Response:
+        cli = self.io.create_client(Trigger, f"{self.node.get_fully_qualified_name()}/{service}")
+        assert self.spin_until(cli.service_is_ready, 10.0)
+        future = cli.call_async(Trigger.Request())
+        assert self.spin_until(future.done, 10.0)
+        self.io.destroy_client(cli)
+        return future.result()
+
+    def close(self) -> None:
+        if not self.destroyed:
+            self.destroyed = True
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+            self.io.destroy_node()
+
+
+@pytest.fixture()
+def make_harness(ctx: Context, tmp_path: Path):
+    made: list[Harness] = []
+
+    def factory(**params: Any) -> Harness:
+        h = Harness(ctx, tmp_path, **params)
+        made.append(h)
+        return h
+
+    yield factory
+    for h in made:
+        h.close()
+
+
+@pytest.fixture(scope="module")
+def sla_run() -> BatterySeries:
+    path = REPO_ROOT / "bags" / "sla_field_run_2_partial"
+    if not (path / "metadata.yaml").is_file():
+        pytest.skip(f"bundled bag {path.name} not present")
+    return read_battery_bag(path)
+
+
+# -- 1. live == offline ----------------------------------------------------------------------
+def test_replay_matches_the_offline_estimator_sample_for_sample(make_harness, sla_run, battery):
+    n = 3000
+    soc0 = float(sla_run.soc_ref[0])
+    h = make_harness(estimator="hybrid", initial_soc=repr(soc0), initial_soc_std=0.1)
+    h.send(series_msgs(sla_run, n))
+    h.spin_for(0.1)
+    assert len(h.soc) == n and len(h.est) == n  # no sample lost, none duplicated
+
+    offline = run_estimator(make_estimator("hybrid", battery, soc0, 0.1), head(sla_run, n))
+    live = np.array([m.percentage for m in h.soc])
+    assert np.max(np.abs(live - offline.soc)) < 1e-6  # percentage is float32
+    est_soc = np.array([decode_estimate(m)["soc"] for m in h.est])
+    np.testing.assert_allclose(est_soc, offline.soc, rtol=0, atol=1e-12)
+    est_std = np.array([decode_estimate(m)["soc_std"] for m in h.est])
+    np.testing.assert_allclose(est_std, offline.soc_std, rtol=0, atol=1e-12)
+
+    # Output fields: stamps are the input stamps, ROS sign, charge/capacity, status.
+    stamps = [m.header.stamp.sec * S + m.header.stamp.nanosec for m in h.soc]
+    assert stamps == [int(s) for s in sla_run.stamp_ns[:n]]
+    last = h.soc[-1]
+    assert last.current == pytest.approx(ros_current_from_core(sla_run.current_a[n - 1]))
+    assert last.voltage == pytest.approx(sla_run.voltage_v[n - 1])
+    assert last.charge == pytest.approx(last.percentage * battery.capacity_ah, rel=1e-6)
+    assert last.capacity == pytest.approx(battery.capacity_ah)
+    assert last.design_capacity == pytest.approx(battery.nominal_capacity_ah)
+    assert last.power_supply_technology == BatteryState.POWER_SUPPLY_TECHNOLOGY_VRLA
+    assert last.present and last.serial_number == "SIM-1"
+    for m in h.soc:
+        if m.current < -0.1:
+            assert m.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+        if m.voltage < battery.limits.voltage_min_v:
+            assert m.power_supply_health == BatteryState.POWER_SUPPLY_HEALTH_DEAD
+    # The estimate vector is labelled and sized for the hybrid state.
+    labels = h.est[-1].layout.dim[0].label.removeprefix("fields:").split(",")
+    assert labels == estimate_labels(h.node.estimator.state_names)
+    assert len(h.est[-1].data) == len(labels) == 7 + 3 + 9
+    assert decode_estimate(h.est[-1])["stamp_s"] == pytest.approx(sla_run.stamp_ns[n - 1] * 1e-9)
+
+
+# -- 2. estimator switch at run time ---------------------------------------------------------
+def test_switching_estimator_keeps_the_soc_and_refuses_unknown_names(
+    make_harness, sla_run, battery
+):
+    n1, n2 = 600, 300
+    soc0 = float(sla_run.soc_ref[0])
+    h = make_harness(estimator="hybrid", initial_soc=repr(soc0))
+    msgs = series_msgs(sla_run, n1 + n2)
+    h.send(msgs[:n1])
+    soc_before = h.node.estimator.soc
+    assert soc_before == pytest.approx(h.soc[-1].percentage, abs=1e-6)
+
+    results = h.set_params(estimator="coulomb")
+    assert results[0].successful, results[0].reason
+    assert h.node.estimator.name == "coulomb"
+    assert abs(h.node.estimator.soc - soc_before) <= 1e-6  # no jump at the switch
+
+    refused = h.set_params(estimator="kalman_magic")
+    assert not refused[0].successful and "unknown estimator" in refused[0].reason
+    assert h.node.get_parameter("estimator").value == "coulomb"
+    assert h.node.estimator.name == "coulomb"
+
+    h.send(msgs[n1:])
+    # Offline: hybrid for n1 samples, then coulomb continuing its run.
+    hybrid = make_estimator("hybrid", battery, soc0, 0.1)
+    for k in range(n1):
+        hybrid.step(float(sla_run.t_s[k]), float(sla_run.current_a[k]), float(sla_run.voltage_v[k]),
+                    float(sla_run.temperature_c[k]))  # fmt: skip
+    cc = make_estimator("coulomb", battery, 0.5)
+    cc.start_from(hybrid.t_last_s, hybrid.soc, hybrid.soc_var, hybrid.current_last_a)
+    expected = [
+        cc.step(
+            float(sla_run.t_s[k]),
+            float(sla_run.current_a[k]),
+            float(sla_run.voltage_v[k]),
+            float(sla_run.temperature_c[k]),
+        ).soc  # fmt: skip
+        for k in range(n1, n1 + n2)
+    ]
+    live = [decode_estimate(m)["soc"] for m in h.est[n1:]]
+    np.testing.assert_allclose(live, expected, rtol=0, atol=1e-12)
+    assert abs(live[0] - soc_before) < 1e-3  # one coulomb step from where hybrid left off
+    assert h.est[-1].layout.dim[0].label == "fields:" + ",".join(estimate_labels(("soc",)))
+
+
+# -- 3. reset paths --------------------------------------------------------------------------
+def test_reset_from_ocv_service_and_reset_parameter(make_harness, battery):
+    h = make_harness(estimator="hybrid", initial_soc="0.9", reset_soc_std=0.02)
+    early = h.trigger("reset_soc_from_ocv")
+    assert not early.success and "no accepted sample" in early.message
+
+    h.send([state_msg(T0 + k * S // 10, 12.45, 0.0) for k in range(20)])
+    resp = h.trigger("reset_soc_from_ocv")
+    assert resp.success, resp.message
+    v_rest = float(np.float32(12.45))  # what a float32 message carries
+    ocv_soc, ocv_std = battery.ocv_curve().soc_at_with_std(v_rest, 0.05)
+    assert h.node.estimator.soc == pytest.approx(ocv_soc, abs=1e-9)
+    assert h.node.estimator.soc_var == pytest.approx(max(ocv_std, 1e-3) ** 2, rel=1e-9)
+    h.send([state_msg(T0 + 2 * S + k * S // 10, 12.45, 0.0) for k in range(5)])
+    assert h.soc[-1].percentage == pytest.approx(ocv_soc, abs=0.02)
+
+    under_load = h.send([state_msg(T0 + 3 * S, 12.2, 3.0)]) or h.trigger("reset_soc_from_ocv")
+    assert under_load.success and "under load" in under_load.message
+
+    results = h.set_params(reset_soc_to=0.42)
+    assert results[0].successful
+    assert h.node.estimator.soc == pytest.approx(0.42)
+    assert h.node.estimator.soc_var == pytest.approx(0.02**2)
+    h.send([state_msg(T0 + 4 * S, 12.0, 0.0)])
+    assert h.soc[-1].percentage == pytest.approx(0.42, abs=0.01)
+    bad = h.set_params(reset_soc_to=1.5)
+    assert not bad[0].successful
+    assert h.node.estimator.soc == pytest.approx(h.soc[-1].percentage, abs=1e-6)
+
+
+# -- 4. persistence --------------------------------------------------------------------------
+def test_state_is_saved_on_shutdown_and_resumed(make_harness, tmp_path, battery):
+    state_file = tmp_path / "state.yaml"
+    a = make_harness(estimator="hybrid", initial_soc="0.9", state_file=str(state_file))
+    a.send([state_msg(T0 + k * S // 10, 12.3, 2.0) for k in range(50)])
+    soc_a, var_a = a.node.estimator.soc, a.node.estimator.soc_var
+    a.close()  # destroy_node saves
+    saved = load_state(state_file)
+    assert saved.soc == soc_a and saved.soc_var == var_a
+    assert saved.stamp_s == pytest.approx((T0 + 49 * S // 10) * 1e-9)
+    assert (saved.estimator, saved.battery) == ("hybrid", battery.name)
+
+    # Restart 60 s later with initial_soc: resume -> continues from the saved SoC.
+    b = make_harness(estimator="hybrid", initial_soc="resume", state_file=str(state_file),
+                     resume_max_age_s=600.0)  # fmt: skip
+    t1 = T0 + 65 * S
+    b.send([state_msg(t1, 12.3, 2.0)])
+    expected = make_estimator("hybrid", battery, 0.5)
+    expected.reset_soc(saved.soc, math.sqrt(saved.soc_var))
+    assert decode_estimate(b.est[-1])["soc"] == pytest.approx(expected.step(0.0, 2.0, 12.3).soc)
+    b.close()
+
+    # An old state file -> falls back to the OCV of the first sample.
+    save_state(state_file, SavedState(0.3, 1e-4, (T0 - 7200 * S) * 1e-9, "hybrid", battery.name))
+    c = make_harness(estimator="hybrid", initial_soc="resume", state_file=str(state_file),
+                     resume_max_age_s=600.0)  # fmt: skip
+    c.send([state_msg(T0, 12.5, 0.0)])
+    soc, std = battery.ocv_curve().soc_at_with_std(12.5, 0.05)
+    fallback = make_estimator("hybrid", battery, 0.5)
+    fallback.reset_soc(soc, max(std, 1e-3))
+    out = decode_estimate(c.est[-1])["soc"]
+    assert out == pytest.approx(fallback.step(0.0, 0.0, 12.5).soc, abs=1e-12)
+    assert abs(out - 0.3) > 0.1  # not the stale saved SoC
+
+
+def test_periodic_save(make_harness, tmp_path):
+    state_file = tmp_path / "periodic.yaml"
+    h = make_harness(initial_soc="0.7", state_file=str(state_file), save_period_s=0.2)
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(5)])
+    assert h.spin_until(state_file.exists, 5.0)
+    assert load_state(state_file).stamp_s == pytest.approx((T0 + 4 * S // 10) * 1e-9)
+
+
+# -- 5. bad input ----------------------------------------------------------------------------
+def test_bad_inputs_are_rejected_counted_and_harmless(make_harness):
+    h = make_harness(estimator="hybrid", initial_soc="0.8", stale_timeout_s=2.0)
+    good = [state_msg(T0 + k * S // 10, 12.3, 1.5) for k in range(10)]
+    h.send(good)
+    newest = T0 + 9 * S // 10
+    bad = {
+        Verdict.NON_FINITE: [
+            state_msg(newest + S // 10, math.nan, 1.5),
+            state_msg(newest + S // 10, 12.3, math.inf),
+        ],  # fmt: skip
+        Verdict.VOLTAGE_RANGE: [state_msg(newest + S // 10, 80.0, 1.5)],
+        Verdict.STALE: [state_msg(newest - 5 * S, 12.3, 1.5)],
+        Verdict.OUT_OF_ORDER: [state_msg(newest - S // 20, 12.3, 1.5)],
+        Verdict.DUPLICATE: [state_msg(newest, 12.3, 1.5)],
+        Verdict.NOT_PRESENT: [state_msg(newest + S // 10, 12.3, 1.5, present=False)],
+        Verdict.CURRENT_RANGE: [state_msg(newest + S // 10, 12.3, 500.0)],
+    }
+    est = h.node.estimator
+    x0, p0, t0 = est.x.copy(), est.p.copy(), est.t_last_s
+    outputs = len(h.soc)
+    for verdict, msgs in bad.items():
+        h.send(msgs, expect_outputs=False)
+        assert h.node.gate.counts[verdict] == len(msgs), verdict
+        assert h.node.estimator is est
+        np.testing.assert_array_equal(est.x, x0)
+        np.testing.assert_array_equal(est.p, p0)
+        assert est.t_last_s == t0
+    h.spin_for(0.05)
+    assert len(h.soc) == outputs  # nothing published for rejected samples
+
+    # Still alive: the next good sample is estimated and published.
+    h.send([state_msg(newest + S // 10, 12.3, 1.5)])
+    assert len(h.soc) == outputs + 1
+
+    # Diagnostics report every reason (wait for a status published after the rejections).
+    sent_at = time.monotonic()
+    assert h.spin_until(lambda: any(t > sent_at for t, _ in h.diag), 5.0)
+    status = next(m for t, m in h.diag if t > sent_at).status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.name.endswith(": SoC estimator")
+    for verdict, msgs in bad.items():
+        assert values[f"rejected_{verdict.value}"] == str(len(msgs))
+    assert values["samples_accepted"] == "11"
+    assert values["estimator"] == "hybrid"
+    assert float(values["soc"]) == pytest.approx(h.soc[-1].percentage, abs=1e-5)
+
+
+def test_diagnostics_levels(make_harness, battery):
+    h = make_harness(estimator="coulomb", initial_soc="0.3", stale_timeout_s=0.5)
+    h.send([state_msg(T0, 12.0, 0.5)])
+    status = h.node.diagnostic_status()
+    assert status.level == b"\x02" and "low SoC" in status.message  # 0.3 < soc_min 0.4
+    h.set_params(low_soc_error=0.1, low_soc_warn=0.35)
+    h.send([state_msg(T0 + S // 10, 12.0, 0.5)])
+    status = h.node.diagnostic_status()
+    assert status.level == b"\x01" and "low SoC" in status.message
+    h.send([state_msg(T0 + 2 * S // 10, 15.5, -1.0)])
+    status = h.node.diagnostic_status()
+    assert status.level == b"\x02" and "overvoltage" in status.message
+    assert h.soc[-1].power_supply_health == BatteryState.POWER_SUPPLY_HEALTH_OVERVOLTAGE
+    assert h.soc[-1].power_supply_status == BatteryState.POWER_SUPPLY_STATUS_CHARGING
+    h.spin_for(0.7)
+    assert "stale input" in h.node.diagnostic_status().message
+
+
+def test_source_clock_jumping_back_is_followed_after_the_stale_timeout(make_harness):
+    h = make_harness(estimator="coulomb", initial_soc="0.8", stale_timeout_s=0.3)
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(10)])
+    soc_before = h.node.estimator.soc
+    restarted = T0 - 3600 * S  # the bridge restarted with its clock an hour behind
+    k = 0
+    while len(h.soc) == 10 and k < 50:
+        h.send([state_msg(restarted + k * S // 10, 12.3, 1.0)], expect_outputs=False)
+        h.spin_for(0.05)
+        k += 1
+    assert len(h.soc) == 11, "the node never accepted the new time line"
+    assert h.node.gate.counts[Verdict.STALE] >= 3
+    # The estimate continued (a coulomb step over the real elapsed time), it was not reset.
+    assert abs(h.soc[-1].percentage - soc_before) < 1e-3
+    h.send([state_msg(restarted + (k + 1) * S // 10, 12.3, 1.0)])
+    assert len(h.soc) == 12
+
+
+def test_use_sim_time_and_publish_rate(make_harness):
+    from rosgraph_msgs.msg import Clock as ClockMsg
+
+    h = make_harness(estimator="coulomb", use_sim_time=True, publish_rate_hz=10.0)
+    clock_pub = h.io.create_publisher(ClockMsg, "/clock", 10)
+    assert h.spin_until(lambda: clock_pub.get_subscription_count() >= 1)
+
+    def advance_to(t_ns: int) -> None:
+        msg = ClockMsg()
+        msg.clock.sec, msg.clock.nanosec = divmod(t_ns, S)
+        clock_pub.publish(msg)
+        h.spin_for(0.05)
+
+    advance_to(T0)
+    h.send([state_msg(T0 + k * S // 100, 12.3, 1.0) for k in range(5)], expect_outputs=False)
+    assert h.node.gate.accepted_count == 5
+    for k in range(1, 6):  # 0.5 s of simulated time: the 10 Hz timer fires, one new estimate
+        advance_to(T0 + k * S // 10)
+    assert h.spin_until(lambda: len(h.soc) >= 1, 2.0)
+    h.spin_for(0.1)
+    assert len(h.soc) == 1  # published once: only new estimates are published
+    last = h.soc[-1].header.stamp
+    assert last.sec * S + last.nanosec == T0 + 4 * S // 100
+    h.send([state_msg(T0 + S, 12.3, 1.0)], expect_outputs=False)
+    advance_to(T0 + 7 * S // 10)
+    assert h.spin_until(lambda: len(h.soc) >= 2, 2.0)
+
+
+# -- 6. 100 Hz for 60 s ----------------------------------------------------------------------
+def test_100hz_stream_loses_nothing(make_harness, battery):
+    n = 6000
+    h = make_harness(estimator="hybrid", initial_soc="0.8")
+    t = np.arange(n) * 0.01
+    current = 2.0 + 1.5 * np.sin(2 * np.pi * t / 7.0)
+    voltage = 12.5 - 0.15 * current - 0.0005 * t
+    msgs = [state_msg(T0 + k * 10_000_000, voltage[k], current[k]) for k in range(n)]
+    started = time.monotonic()
+    h.send(msgs)
+    elapsed = time.monotonic() - started
+    assert len(h.soc) == n and len(h.est) == n
+    stamps = [m.header.stamp.sec * S + m.header.stamp.nanosec for m in h.soc]
+    assert stamps == [T0 + k * 10_000_000 for k in range(n)]
+    assert h.node.gate.rejected_count == 0
+    print(f"6000 samples in {elapsed:.1f} s ({n / elapsed:.0f} samples/s)")
+
+
+# -- pairing mode ----------------------------------------------------------------------------
+def test_separate_current_and_voltage_topics_are_paired(make_harness):
+    h = make_harness(
+        initial_soc="0.8",
+        current_topic="battery/current",
+        voltage_topic="battery/voltage",
+        current_sign="discharge_positive",
+        pair_tolerance_s=0.5,
+    )
+    cur = h.io.create_publisher(Float32, "battery/current", RELIABLE)
+    volt = h.io.create_publisher(Float32, "battery/voltage", RELIABLE)
+    assert h.spin_until(
+        lambda: cur.get_subscription_count() >= 1 and volt.get_subscription_count() >= 1
+    )
+    for k in range(10):
+        cur.publish(Float32(data=2.0))
+        volt.publish(Float32(data=12.25))
+        assert h.spin_until(lambda k=k: len(h.soc) >= k + 1, 5.0)
+        h.spin_for(0.01)
+    assert len(h.soc) == 10
+    assert h.soc[-1].current == pytest.approx(-2.0)  # discharge_positive input -> ROS sign
+    assert h.soc[-1].voltage == pytest.approx(12.25)
+    assert h.node.pairer is not None and h.node.pairer.paired == 10
+
+
+# -- start-up, parameters file, command line, launch -----------------------------------------
+def test_bad_configuration_is_refused(ctx, tmp_path):
+    from soc_estimator_ros.node import NodeConfigError
+
+    for params, match in [
+        ({"initial_soc": "full"}, "initial_soc"),
+        ({"estimator": "nope"}, "estimator"),
+        ({"input_reliability": "maybe"}, "input_reliability"),
+        ({"current_topic": "battery/current"}, "together"),
+    ]:
+        overrides = [Parameter("state_file", value=str(tmp_path / "x.yaml"))]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        with pytest.raises(NodeConfigError, match=match):
+            SocEstimatorNode(context=ctx, parameter_overrides=overrides)
+
+
+def test_parameter_file_loads_in_a_namespace(tmp_path):
+    text = (REPO_ROOT / "config" / "soc_estimator_node.yaml").read_text()
+    path = tmp_path / "params.yaml"
+    path.write_text(text.replace("qos_depth: 50", "qos_depth: 77"))
+    context = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=context)
+    try:
+        node = SocEstimatorNode(
+            namespace="robot1",
+            context=context,
+            parameter_overrides=[Parameter("state_file", value=str(tmp_path / "s.yaml"))],
+        )
+        assert node.get_parameter("qos_depth").value == 77
+        assert node.get_parameter("initial_soc").value == "resume"
+        assert node.get_parameter("save_period_s").value == 5.0
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_help_exits_zero_without_ros(capsys):
+    assert main(["--help"]) == 0
+    assert "usage:" in capsys.readouterr().out
+    out = subprocess.run(
+        [sys.executable, "-m", "soc_estimator_ros.node", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        cwd=REPO_ROOT,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "reset_soc_from_ocv" in out.stdout
+
+
+def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
+    """The console entry point end to end: spin, estimate, SIGINT -> state saved, exit 0."""
+    ns = f"/p_{uuid.uuid4().hex[:8]}"
+    state_file = tmp_path / "proc.yaml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "soc_estimator_ros.node", "--ros-args",
+         "-r", f"__ns:={ns}", "-p", f"state_file:={state_file}", "-p", "initial_soc:=0.8",
+         "-p", "input_reliability:=reliable", "-p", "estimator:=coulomb"],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    io = rclpy.create_node(f"io_{uuid.uuid4().hex[:8]}", namespace=ns, context=ctx)
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(io)
+        got: list[BatteryState] = []
+        pub = io.create_publisher(BatteryState, "battery/state", RELIABLE)
+        io.create_subscription(BatteryState, "battery/soc", got.append, RELIABLE)
+        end = time.monotonic() + 20.0
+        while (pub.get_subscription_count() < 1 or io.count_publishers(f"{ns}/battery/soc") < 1) \
+                and time.monotonic() < end:  # fmt: skip
+            executor.spin_once(timeout_sec=0.05)
+        for k in range(5):
+            pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
+        while len(got) < 5 and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        if len(got) < 5:
+            proc.kill()
+            pytest.fail(f"{len(got)} outputs; node output:\n{proc.communicate()[0]}")
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+        assert proc.returncode == 0, out
+        saved = load_state(state_file)
+        assert saved.soc == pytest.approx(got[-1].percentage, abs=1e-6)
+        assert saved.estimator == "coulomb"
+        executor.shutdown(timeout_sec=1.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        io.destroy_node()
+
+
+def test_best_effort_input_is_the_default_and_matches_a_reliable_publisher(ctx, tmp_path):
+    h = Harness(ctx, tmp_path, input_reliability="best_effort", qos_depth=50)
+    try:
+        assert h.node.get_parameter("input_reliability").value == "best_effort"
+        for k in range(20):
+            h.send([state_msg(T0 + k * S // 10, 12.3, 1.0)])
+        assert len(h.soc) == 20
+    finally:
+        h.close()
+
+
+def test_launch_file_builds_a_launch_description():
+    path = REPO_ROOT / "launch" / "soc_estimator.launch.py"
+    compile(path.read_text(encoding="utf-8"), str(path), "exec")  # at least valid Python
+    pytest.importorskip("launch_ros")
+    from launch.actions import DeclareLaunchArgument
+
+    from launch import LaunchDescription
+
+    spec = importlib.util.spec_from_file_location("soc_estimator_launch", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    ld = module.generate_launch_description()
+    assert isinstance(ld, LaunchDescription)
+    names = {e.name for e in ld.entities if isinstance(e, DeclareLaunchArgument)}
+    assert names == {"battery", "namespace", "params_file"}
