@@ -1,4 +1,4 @@
-"""Read and write the bridge's rosbag2 recordings (MCAP or sqlite3, compressed or not).
+"""Read and write the bridge's rosbag2 recordings (MCAP or sqlite3, compressed or not), and CSV.
 
 The bag contract (bags/README.md): ``/battery/state`` carries ``sensor_msgs/BatteryState``
 samples from the STM32 bridge (current NEGATIVE while discharging, as ROS defines it);
@@ -6,12 +6,18 @@ samples from the STM32 bridge (current NEGATIVE while discharging, as ROS define
 ``percentage``) with the same stamps. This module uses ``rosbags`` only, no rclpy, so replay,
 identification and tests run without ROS.
 
+A recording on a command line (``soc_replay``, ``soc_identify``) is a bag or a CSV
+(``time_s,current_a,voltage_v[,temperature_c][,soc_ref]``): :func:`read_recording` reads
+either, :func:`add_recording_arguments` declares the options that go with it.
+
 On reading, the current is converted to the core's convention (positive while discharging);
 samples are returned in header-stamp order.
 """
 
 from __future__ import annotations
 
+import argparse
+import csv
 import heapq
 import math
 from collections.abc import Iterable, Iterator, Sequence
@@ -25,7 +31,12 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
-from .conventions import core_current_from_ros, ros_current_from_core
+from .conventions import (
+    CurrentSign,
+    core_current_from,
+    core_current_from_ros,
+    ros_current_from_core,
+)
 
 STATE_TOPIC = "/battery/state"
 REFERENCE_TOPIC = "/battery/soc_reference"
@@ -230,3 +241,60 @@ def write_battery_bag(
         # Interleave the topics in stamp order, as a recorder would.
         for stamp, _, conn, msg in heapq.merge(*streams, key=lambda item: item[:2]):
             writer.write(conn, stamp, TYPESTORE.serialize_cdr(msg, BATTERY_STATE))
+
+
+def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:
+    """A CSV with ``time_s,current_a,voltage_v`` and optional ``temperature_c``, ``soc_ref``."""
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise BagError(path, "no data rows")
+    missing = {"time_s", "current_a", "voltage_v"} - set(rows[0])
+    if missing:
+        raise BagError(path, f"missing column(s) {', '.join(sorted(missing))}")
+
+    def col(name: str) -> np.ndarray:
+        if name not in rows[0]:
+            return np.full(len(rows), math.nan)
+        try:
+            return np.array([float(r[name]) if r[name] != "" else math.nan for r in rows])
+        except ValueError as exc:
+            raise BagError(path, f"column {name}: {exc}") from exc
+
+    t = col("time_s")
+    if np.any(np.diff(t) <= 0):
+        raise BagError(path, "time_s must increase strictly")
+    current = np.array([core_current_from(float(i), sign) for i in col("current_a")])
+    soc_ref = col("soc_ref")
+    return BatterySeries(
+        t_s=t - t[0],
+        stamp_ns=np.round(t * 1e9).astype(np.int64),
+        current_a=current,
+        voltage_v=col("voltage_v"),
+        temperature_c=col("temperature_c"),
+        soc_ref=None if np.all(np.isnan(soc_ref)) else soc_ref,
+    )
+
+
+def read_recording(
+    path: Path | str,
+    state_topic: str = STATE_TOPIC,
+    sign: CurrentSign = CurrentSign.DISCHARGE_POSITIVE,
+    reference_topic: str | None = REFERENCE_TOPIC,
+) -> BatterySeries:
+    """A CSV file (current sign ``sign``) or a bag (topics as :func:`read_battery_bag`)."""
+    path = Path(path)
+    if path.is_file() and path.suffix.lower() == ".csv":
+        return read_csv(path, sign)
+    return read_battery_bag(path, state_topic=state_topic, reference_topic=reference_topic)
+
+
+def add_recording_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--topic`` and ``--current-sign``: how to read a recording given on the command line."""
+    parser.add_argument("--topic", default=STATE_TOPIC, help="BatteryState topic in a bag")
+    parser.add_argument(
+        "--current-sign",
+        choices=[s.value for s in CurrentSign],
+        default=CurrentSign.DISCHARGE_POSITIVE.value,
+        help="sign convention of a CSV",
+    )

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from .bag_io import (
-    STATE_TOPIC,
     TECHNOLOGY_BY_CHEMISTRY,
     BagError,
     BatterySeries,
-    read_battery_bag,
+    add_recording_arguments,
+    read_recording,
 )
-from .conventions import CurrentSign, core_current_from
+from .conventions import CurrentSign
 from .estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
 from .evaluation import Accuracy, EstimateSeries, accuracy, run_estimator
 from .params import BatteryParams, ParamFileError, load_battery_params
@@ -42,46 +42,6 @@ INITIAL_SOC_STD = 0.1
 
 class InputError(ValueError):
     """An input file that cannot be replayed."""
-
-
-def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:
-    """A CSV with ``time_s,current_a,voltage_v`` and optional ``temperature_c``, ``soc_ref``."""
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    if not rows:
-        raise InputError(f"{path}: no data rows")
-    missing = {"time_s", "current_a", "voltage_v"} - set(rows[0])
-    if missing:
-        raise InputError(f"{path}: missing column(s) {', '.join(sorted(missing))}")
-
-    def col(name: str) -> np.ndarray:
-        if name not in rows[0]:
-            return np.full(len(rows), math.nan)
-        try:
-            return np.array([float(r[name]) if r[name] != "" else math.nan for r in rows])
-        except ValueError as exc:
-            raise InputError(f"{path}: column {name}: {exc}") from exc
-
-    t = col("time_s")
-    if np.any(np.diff(t) <= 0):
-        raise InputError(f"{path}: time_s must increase strictly")
-    current = np.array([core_current_from(float(i), sign) for i in col("current_a")])
-    soc_ref = col("soc_ref")
-    return BatterySeries(
-        t_s=t - t[0],
-        stamp_ns=np.round(t * 1e9).astype(np.int64),
-        current_a=current,
-        voltage_v=col("voltage_v"),
-        temperature_c=col("temperature_c"),
-        soc_ref=None if np.all(np.isnan(soc_ref)) else soc_ref,
-    )
-
-
-def load_input(path: Path, topic: str, sign: CurrentSign) -> BatterySeries:
-    """A bag directory or a CSV file."""
-    if path.is_file() and path.suffix.lower() == ".csv":
-        return read_csv(path, sign)
-    return read_battery_bag(path, state_topic=topic)
 
 
 def default_battery_file(series: BatterySeries) -> Path:
@@ -193,7 +153,7 @@ def _fmt(acc: Accuracy | None) -> str:
 
 def _job(args: tuple) -> tuple[str, list[ReplayResult], str | None]:
     path, topic, sign, params, estimators, initial_soc, plot_dir = args
-    series = load_input(Path(path), topic, sign)
+    series = read_recording(Path(path), topic, sign)
     battery = load_battery_params(params or default_battery_file(series))
     name = Path(path).name
     results = [replay_one(series, battery, e, initial_soc, name) for e in estimators]
@@ -237,13 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="ref",
         help="initial SoC in [0, 1], or 'ref' for the input's reference (default)",
     )
-    ap.add_argument("--topic", default=STATE_TOPIC, help="BatteryState topic in the bag")
-    ap.add_argument(
-        "--current-sign",
-        choices=[s.value for s in CurrentSign],
-        default=CurrentSign.DISCHARGE_POSITIVE.value,
-        help="sign convention of a CSV",
-    )
+    add_recording_arguments(ap)
     ap.add_argument("--output", type=Path, help="CSV of the estimates (one input, one estimator)")
     ap.add_argument("--plot", type=Path, help="PNG plot (one input)")
     ap.add_argument("--plot-dir", type=Path, help="one PNG per input in this directory")
@@ -297,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         write_csv(args.output, done[0][1][0])
         print(f"estimates: {args.output}")
     if args.plot:
-        series = load_input(inputs[0], args.topic, CurrentSign(args.current_sign))
+        series = read_recording(inputs[0], args.topic, CurrentSign(args.current_sign))
         plot_results(args.plot, series, done[0][1])
         print(f"plot: {args.plot}")
     return 0

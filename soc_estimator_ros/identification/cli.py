@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..bag_io import STATE_TOPIC, BagError, BatterySeries, read_battery_bag
+from ..bag_io import BagError, BatterySeries, add_recording_arguments, read_recording
 from ..conventions import CurrentSign
 from ..params import ParamFileError, battery_params_to_dict, load_battery_params
 from .identify import IdentificationResult, identify
@@ -31,17 +31,10 @@ TEMPLATES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
 
 
 def load_test(path: Path, topic: str, sign: CurrentSign) -> BatterySeries:
-    """A bag (directory) or a CSV file."""
-    from ..replay import InputError, read_csv
-
+    """A pulse test or slow discharge: a bag (no reference topic needed) or a CSV file."""
     if not path.exists():
         raise IdentificationError(f"{path}: no such file or bag")
-    if path.is_file() and path.suffix.lower() == ".csv":
-        try:
-            return read_csv(path, sign)
-        except InputError as exc:
-            raise IdentificationError(str(exc)) from exc
-    return read_battery_bag(path, state_topic=topic, reference_topic=None)
+    return read_recording(path, topic, sign, reference_topic=None)
 
 
 def report(result: IdentificationResult) -> str:
@@ -108,13 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--capacity-ah", type=float, help="pack capacity (default: measured)")
     ap.add_argument("--slow-discharge", type=Path, help="slow discharge (C/20) to the cut-off")
     ap.add_argument("--template", type=Path, help="file to take non-identified values from")
-    ap.add_argument(
-        "--current-sign",
-        choices=[s.value for s in CurrentSign],
-        default=CurrentSign.DISCHARGE_POSITIVE.value,
-        help="sign convention of a CSV",
-    )
-    ap.add_argument("--topic", default=STATE_TOPIC, help="BatteryState topic in a bag")
+    add_recording_arguments(ap)
     ap.add_argument("--output", type=Path, required=True, help="parameter YAML to write")
     ap.add_argument("--plot", type=Path, help="PNG of the fits")
     return ap
