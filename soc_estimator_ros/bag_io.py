@@ -21,7 +21,7 @@ import csv
 import heapq
 import math
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +78,8 @@ class BatterySeries:
         design_capacity_ah: the bridge's design capacity (NaN if not sent).
         technology: ``power_supply_technology`` of the first sample.
         reference_capacity_ah: capacity behind the reference SoC, or None.
+        repeated_stamps: rows dropped on reading because they repeated the previous row's
+            time (a CSV from a cell tester logs a record at both sides of a step boundary).
     """
 
     t_s: np.ndarray
@@ -89,9 +91,23 @@ class BatterySeries:
     design_capacity_ah: float = math.nan
     technology: int = 0
     reference_capacity_ah: float | None = None
+    repeated_stamps: int = 0
 
     def __len__(self) -> int:
         return len(self.t_s)
+
+    def window(self, lo: int, hi: int | None = None) -> BatterySeries:
+        """Samples ``lo`` to ``hi`` (exclusive) as a recording of their own (time from 0)."""
+        sl = slice(lo, hi)
+        return replace(
+            self,
+            t_s=self.t_s[sl] - self.t_s[lo],
+            stamp_ns=self.stamp_ns[sl],
+            current_a=self.current_a[sl],
+            voltage_v=self.voltage_v[sl],
+            temperature_c=self.temperature_c[sl],
+            soc_ref=None if self.soc_ref is None else self.soc_ref[sl],
+        )
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -244,7 +260,12 @@ def write_battery_bag(
 
 
 def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:
-    """A CSV with ``time_s,current_a,voltage_v`` and optional ``temperature_c``, ``soc_ref``."""
+    """A CSV with ``time_s,current_a,voltage_v`` and optional ``temperature_c``, ``soc_ref``.
+
+    Other columns are ignored. A row whose ``time_s`` equals the previous row's is a cell
+    tester's second record of a step boundary: the last record of that instant is kept and the
+    count of dropped rows is in ``repeated_stamps``. Time running backwards is an error.
+    """
     with path.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     if not rows:
@@ -262,17 +283,26 @@ def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:
             raise BagError(path, f"column {name}: {exc}") from exc
 
     t = col("time_s")
-    if np.any(np.diff(t) <= 0):
-        raise BagError(path, "time_s must increase strictly")
-    current = np.array([core_current_from(float(i), sign) for i in col("current_a")])
-    soc_ref = col("soc_ref")
+    dt = np.diff(t)
+    if np.any(dt < 0) or not np.all(np.isfinite(t)):
+        k = int(np.argmax(~(dt >= 0))) + 1
+        raise BagError(path, f"time_s must not decrease (row {k + 2}: {t[k]} after {t[k - 1]})")
+    keep = np.concatenate([dt > 0, [True]])  # the last row of each instant
+
+    def kept(name: str) -> np.ndarray:
+        return col(name)[keep]
+
+    current = np.array([core_current_from(float(i), sign) for i in kept("current_a")])
+    soc_ref = kept("soc_ref")
+    t = t[keep]
     return BatterySeries(
         t_s=t - t[0],
         stamp_ns=np.round(t * 1e9).astype(np.int64),
         current_a=current,
-        voltage_v=col("voltage_v"),
-        temperature_c=col("temperature_c"),
+        voltage_v=kept("voltage_v"),
+        temperature_c=kept("temperature_c"),
         soc_ref=None if np.all(np.isnan(soc_ref)) else soc_ref,
+        repeated_stamps=int(np.count_nonzero(~keep)),
     )
 
 

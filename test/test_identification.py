@@ -196,7 +196,12 @@ def bag_identification(chem: str):
     template = load_battery_params(
         ROOT / "config" / f"{'sla_12v5ah' if chem == 'sla' else 'lfp_12v6ah'}.yaml"
     )
-    return identify(read_battery_bag(pulse), template, slow=read_battery_bag(slow))
+    # As soc_identify reads them: a robot owner's pulse test has no reference SoC.
+    return identify(
+        read_battery_bag(pulse, reference_topic=None),
+        template,
+        slow=read_battery_bag(slow, reference_topic=None),
+    )
 
 
 # Measured with the identified files (README "Identification"): the pulse tests' RMSE is

@@ -1,20 +1,27 @@
-"""``soc_identify``: identify a battery parameter file from a pulse-discharge test.
+"""``soc_identify``: identify a battery parameter file from pulse-discharge tests.
 
-    soc_identify INPUT --chemistry {lfp,sla} [--capacity-ah X] [--slow-discharge INPUT2]
-                 [--template FILE] [--current-sign ...] [--topic T] --output params.yaml
-                 [--plot fit.png]
+    soc_identify INPUT [INPUT ...] --chemistry {li_ion,lfp,sla} [--capacity-ah X]
+                 [--slow-discharge INPUT2] [--temperature-c T [T ...]]
+                 [--reference-capacity-ah Q] [--template FILE] [--current-sign ...] [--topic T]
+                 --output params.yaml [--plot fit.png]
 
 INPUT is a rosbag2 bag (the bridge's BatteryState topic) or a CSV
-``time_s,current_a,voltage_v[,temperature_c]``. The test must start from a full pack.
-Everything not identified (name, limits, filter tunings) comes from ``--template``
-(default: the bundled file of the chemistry), so regenerating a bundled file keeps its tunings.
+``time_s,current_a,voltage_v[,temperature_c][,soc_ref]``: a seed-000 pulse test, an HPPC or
+pulse blocks with regen (see ``segment.py``). A test starts full, or at the rest after a
+recharge it begins with. Several INPUTs are the same test at several temperatures (from each
+test's temperature sensor, or ``--temperature-c`` in the same order): the 2-RC tables get a
+temperature axis; the test nearest 25 degC gives the OCV, the capacity and the RC model.
+Everything not identified (name, limits, filter tunings) comes from ``--template`` (default:
+the bundled file of the chemistry), so regenerating a bundled file keeps its tunings.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,25 +29,82 @@ import yaml
 
 from ..bag_io import BagError, BatterySeries, add_recording_arguments, read_recording
 from ..conventions import CurrentSign
-from ..params import ParamFileError, battery_params_to_dict, load_battery_params
-from .identify import IdentificationResult, identify
+from ..params import (
+    BatteryParams,
+    ParamFileError,
+    battery_params_to_dict,
+    load_battery_params,
+)
+from .identify import IdentificationResult, identify, over_temperature, test_temperature_c
 from .segment import IdentificationError
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
-TEMPLATES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
+TEMPLATES = {
+    "sla": "sla_12v5ah.yaml",
+    "lfp": "lfp_12v6ah.yaml",
+    "li_ion": "li_ion_ncr18650pf.yaml",
+}
 
 
-def load_test(path: Path, topic: str, sign: CurrentSign) -> BatterySeries:
-    """A pulse test or slow discharge: a bag (no reference topic needed) or a CSV file."""
+def load_test(
+    path: Path, topic: str, sign: CurrentSign, reference_capacity_ah: float | None = None
+) -> BatterySeries:
+    """A pulse test or slow discharge: a bag (no reference topic needed) or a CSV file.
+
+    ``reference_capacity_ah``: the capacity behind a CSV's ``soc_ref`` column (a tester's
+    amp-hour counter); with it the charge is counted from the reference (logging gaps).
+    """
     if not path.exists():
         raise IdentificationError(f"{path}: no such file or bag")
-    return read_recording(path, topic, sign, reference_topic=None)
+    series = read_recording(path, topic, sign, reference_topic=None)
+    if reference_capacity_ah is not None and series.soc_ref is not None:
+        series = replace(series, reference_capacity_ah=reference_capacity_ah)
+    return series
+
+
+def identify_tests(
+    tests: list[BatterySeries],
+    temperatures_c: list[float] | None,
+    template: BatteryParams,
+    capacity_ah: float | None,
+    slow: BatterySeries | None,
+    progress,
+) -> tuple[BatteryParams, list[IdentificationResult]]:
+    """One test, or one per temperature (see the module docstring)."""
+    if temperatures_c is not None and len(temperatures_c) != len(tests):
+        raise IdentificationError(
+            f"--temperature-c gives {len(temperatures_c)} temperature(s) for {len(tests)} tests"
+        )
+    if len(tests) == 1:
+        res = identify(tests[0], template, capacity_ah, slow, progress)
+        if temperatures_c is not None:
+            res.temperature_c = temperatures_c[0]
+        return res.battery, [res]
+    temps = temperatures_c or [test_temperature_c(t) for t in tests]
+    if any(math.isnan(t) for t in temps):
+        raise IdentificationError(
+            "a test has no temperature sensor: give every test's temperature (--temperature-c)"
+        )
+    ref = int(np.argmin([abs(t - 25.0) for t in temps]))
+    first = identify(tests[ref], template, capacity_ah, slow, progress)
+    results: list[IdentificationResult] = []
+    for n, test in enumerate(tests):
+        if n == ref:
+            res = first
+        else:
+            # The reference's capacity: a cold HPPC stops at the cut-off long before empty.
+            res = identify(test, template, first.capacity_ah, None, progress)
+            res.notes.append(f"capacity of the {temps[ref]:.1f} degC test used")
+        res.temperature_c = temps[n]
+        results.append(res)
+    return over_temperature(results, ref), results
 
 
 def report(result: IdentificationResult) -> str:
     """The per-pulse fit report (seed 000 Fig. 7 as a table)."""
+    temp = "" if math.isnan(result.temperature_c) else f" (test at {result.temperature_c:.1f} degC)"
     lines = [
-        f"capacity: {result.capacity_ah:.4f} Ah ({result.capacity_source})",
+        f"capacity: {result.capacity_ah:.4f} Ah ({result.capacity_source}){temp}",
         f"{'pulse':>5} {'SoC':>6} {'R0_mohm':>8} {'R1_mohm':>8} {'tau1_s':>8} {'R2_mohm':>8} "
         f"{'tau2_s':>8} {'rmse_lin_mV':>11} {'rmse_mV':>8}",
     ]
@@ -70,7 +134,8 @@ def plot_fit(path: Path, test: BatterySeries, result: IdentificationResult) -> N
 
     from .identify import simulate_voltage
 
-    sim = simulate_voltage(result.battery, test, 1.0)
+    sim = simulate_voltage(result.battery, result.test or test, 1.0, result.soc_track)
+    test = result.test or test
     fig, axes = plt.subplots(3, 1, figsize=(10, 10))
     t_h = test.t_s / 3600.0
     axes[0].plot(t_h, test.voltage_v, "0.5", lw=0.8, label="measured")
@@ -96,10 +161,18 @@ def plot_fit(path: Path, test: BatterySeries, result: IdentificationResult) -> N
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="soc_identify", description=__doc__.splitlines()[0])
-    ap.add_argument("input", type=Path, help="pulse test: rosbag2 bag or CSV")
+    ap.add_argument("input", type=Path, nargs="+", help="pulse test(s): rosbag2 bag or CSV")
     ap.add_argument("--chemistry", required=True, choices=sorted(TEMPLATES))
     ap.add_argument("--capacity-ah", type=float, help="pack capacity (default: measured)")
     ap.add_argument("--slow-discharge", type=Path, help="slow discharge (C/20) to the cut-off")
+    ap.add_argument(
+        "--temperature-c", type=float, nargs="+", help="each test's temperature, in order"
+    )
+    ap.add_argument(
+        "--reference-capacity-ah",
+        type=float,
+        help="capacity behind a CSV's soc_ref column: count the charge from it",
+    )
     ap.add_argument("--template", type=Path, help="file to take non-identified values from")
     add_recording_arguments(ap)
     ap.add_argument("--output", type=Path, required=True, help="parameter YAML to write")
@@ -116,10 +189,13 @@ def main(argv: list[str] | None = None) -> int:
             raise IdentificationError(
                 f"template {args.template} is {template.chemistry}, not {args.chemistry}"
             )
-        test = load_test(args.input, args.topic, sign)
+        tests = [
+            load_test(path, args.topic, sign, args.reference_capacity_ah) for path in args.input
+        ]
         slow = load_test(args.slow_discharge, args.topic, sign) if args.slow_discharge else None
-        result = identify(
-            test,
+        battery, results = identify_tests(
+            tests,
+            args.temperature_c,
             template,
             args.capacity_ah,
             slow,
@@ -128,22 +204,23 @@ def main(argv: list[str] | None = None) -> int:
     except (IdentificationError, BagError, ParamFileError) as exc:
         print(f"soc_identify: error: {exc}", file=sys.stderr)
         return 2
-    print(report(result))
+    for result in results:
+        print(report(result))
     command = shlex.join(["soc_identify", *(argv if argv is not None else sys.argv[1:])])
+    names = " and ".join(p.name for p in args.input)
     header = (
-        f"# Generated by soc_identify from {args.input.name}"
+        f"# Generated by soc_identify from {names}"
         + (f" and {args.slow_discharge.name}" if args.slow_discharge else "")
         + f'.\n# Regenerate: {command}\n# Schema: README "Battery parameter files".\n'
     )
-    battery = result.battery
     data = battery_params_to_dict(battery)
-    data["source"] = f"identified by soc_identify from {args.input.name}"
+    data["source"] = f"identified by soc_identify from {names}"
     text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
     args.output.write_text(header + text)
     load_battery_params(args.output)  # what was written loads as is
     print(f"wrote {args.output}")
     if args.plot:
-        plot_fit(args.plot, test, result)
+        plot_fit(args.plot, results[0].test, results[0])
         print(f"plot: {args.plot}")
     return 0
 

@@ -21,7 +21,7 @@ from .fit import (
     fit_rc_pulse,
     monotone_ocv_table,
 )
-from .segment import IdentificationError, segment_pulses
+from .segment import IdentificationError, segment_pulses, start_after_last_charge
 
 
 @dataclass
@@ -35,6 +35,10 @@ class IdentificationResult:
     capacity_source: str
     ocv_rest_points: list[tuple[float, float]]
     notes: list[str] = field(default_factory=list)
+    test: BatterySeries | None = None  # the test as fitted (from full, offset removed)
+    soc_track: np.ndarray | None = None  # the SoC the fits used, per sample of ``test``
+    levels: list[PulseFit] = field(default_factory=list)  # one fit per SoC level (the tables)
+    temperature_c: float = math.nan  # the test's temperature (median of its sensor)
 
 
 def zero_current_offset(
@@ -76,17 +80,67 @@ def offset_corrected(series: BatterySeries, notes: list[str], label: str) -> Bat
     return replace(series, current_a=series.current_a - offset)
 
 
-def _capacity(test, slow, capacity_ah, template) -> tuple[float, str]:
+def _capacity(test, slow, capacity_ah, template, charge_ah) -> tuple[float, str]:
+    """Given, else from a slow discharge, else the test's own charge when it ends at the
+    cut-off (an HPPC that runs to the voltage limit), else the template's."""
     if capacity_ah is not None:
         return capacity_ah, "given"
     if slow is not None:
         return float(charge_removed_ah(slow)[-1]), "slow discharge, full to its end"
+    cutoff_v = template.limits.voltage_min_v
+    if float(np.min(test.voltage_v)) <= cutoff_v * 1.01:
+        return float(np.max(charge_ah)), (
+            f"the test's charge from full to the {cutoff_v:g} V cut-off (at the test's rates)"
+        )
     return template.capacity_ah, "template (not measured: pass --capacity-ah or a slow discharge)"
 
 
+def group_by_soc(fits: list[PulseFit], width: float = 0.03) -> list[list[PulseFit]]:
+    """Fits at one SoC level (within ``width`` of the level's first), in SoC order.
+
+    An HPPC applies several rates at each SoC level; one table point per level keeps the
+    tables free of near-duplicate SoC points with rate-dependent values (a steep kink).
+    """
+    groups: list[list[PulseFit]] = []
+    for f in sorted(fits, key=lambda f: f.soc):
+        if groups and f.soc - groups[-1][0].soc < width:
+            groups[-1].append(f)
+        else:
+            groups.append([f])
+    return groups
+
+
+def level_fit(group: list[PulseFit]) -> PulseFit:
+    """One fit for a SoC level: the median of each parameter over its pulses (the rates)."""
+    if len(group) == 1:
+        return group[0]
+    med = {
+        k: float(np.median([getattr(f, k) for f in group])) for k in PulseFit.__dataclass_fields__
+    }
+    return PulseFit(**med)
+
+
 def _ocv_table(test, pulses, soc_at, slow, capacity_ah, notes) -> tuple[np.ndarray, np.ndarray]:
-    """Rest points (seed 000 §2.3), merged with a slow-discharge curve when given (Fig. 8)."""
-    idx = [p.rest_before for p in pulses] + [pulses[-1].rest_end]
+    """Rest points (seed 000 §2.3), merged with a slow-discharge curve when given (Fig. 8).
+
+    Of the rest points at one SoC level (an HPPC's pulse set), the one after the longest rest
+    is used: the 20-min rests between an HPPC's pulses still relax by millivolts.
+    """
+    candidates = [(p.rest_before, p.rest_before_s) for p in pulses]
+    candidates.append((pulses[-1].rest_end, math.inf))
+    chosen: list[tuple[int, float]] = []
+    for k, rest_s in sorted(candidates, key=lambda c: -soc_at[c[0]]):
+        if chosen and abs(soc_at[k] - soc_at[chosen[-1][0]]) < 0.02:
+            if rest_s > chosen[-1][1]:
+                chosen[-1] = (k, rest_s)
+            continue
+        chosen.append((k, rest_s))
+    if len(chosen) < len(candidates):
+        notes.append(
+            f"OCV: {len(chosen)} rest points of {len(candidates)} (one per SoC level, "
+            "the longest-rested)"
+        )
+    idx = [k for k, _ in chosen]
     rest_soc = np.array([soc_at[k] for k in idx])
     rest_v = np.array([rested_voltage(test, k) for k in idx])
     if slow is None:
@@ -126,40 +180,53 @@ def identify(
     slow: BatterySeries | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> IdentificationResult:
-    """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test starting full."""
+    """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test.
+
+    The test starts full: at its first sample, or at the rest after its last recharge when it
+    begins with one (reported). Every fit that fails is skipped and reported, never guessed.
+    """
     notes: list[str] = []
+    if test.repeated_stamps:
+        notes.append(f"input: {test.repeated_stamps} rows repeating a time stamp dropped")
+    first = start_after_last_charge(test)
+    if first is not None:
+        notes.append(
+            f"test starts at t = {test.t_s[first]:.0f} s, at the rest after the last recharge "
+            f"({first} samples before it skipped); SoC 1 there"
+        )
+        test = test.window(first)
     test = offset_corrected(test, notes, "pulse test")
     if slow is not None:
         slow = offset_corrected(slow, notes, "slow discharge")
-    capacity, cap_source = _capacity(test, slow, capacity_ah, template)
+    charge_ah = charge_removed_ah(test, notes=notes)
+    capacity, cap_source = _capacity(test, slow, capacity_ah, template, charge_ah)
     if not capacity > 0:
         raise IdentificationError(f"capacity must be > 0 Ah, got {capacity}")
-    pulses = segment_pulses(test)
-    soc_at = 1.0 - charge_removed_ah(test) / capacity
+    pulses = segment_pulses(test, notes=notes)
+    soc_at = 1.0 - charge_ah / capacity
     ocv_soc, ocv_v = _ocv_table(test, pulses, soc_at, slow, capacity, notes)
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
     for n, p in enumerate(pulses, 1):
         if progress:
             progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
-        fits.append(fit_pulse(test, p, soc_at))
-        rcs.append(fit_rc_pulse(test, p))
-    by_soc = sorted(fits, key=lambda f: f.soc)
-
-    def table(values: list[float]) -> ParamTable:
-        return ParamTable.from_arrays([f.soc for f in by_soc], values)
-
-    thevenin = TheveninParams(
-        r0_ohm=table([f.r0_ohm for f in by_soc]),
-        branches=(
-            RcBranch(
-                table([f.r1_ohm for f in by_soc]), table([f.tau1_s / f.r1_ohm for f in by_soc])
-            ),
-            RcBranch(
-                table([f.r2_ohm for f in by_soc]), table([f.tau2_s / f.r2_ohm for f in by_soc])
-            ),
-        ),
-    )
+        try:
+            fit = fit_pulse(test, p, soc_at)
+            rc_fit = fit_rc_pulse(test, p)
+        except (IdentificationError, RuntimeError, ValueError) as exc:
+            notes.append(f"pulse at t = {test.t_s[p.start]:.0f} s skipped: {exc}")
+            continue
+        fits.append(fit)
+        rcs.append(rc_fit)
+    if not fits:
+        raise IdentificationError(f"none of the {len(pulses)} pulse fits succeeded")
+    by_soc = [level_fit(g) for g in group_by_soc(fits)]
+    if len(by_soc) < len(fits):
+        notes.append(
+            f"tables: {len(fits)} pulse fits at {len(by_soc)} SoC levels (median over the "
+            "rates of each level)"
+        )
+    thevenin = thevenin_tables(by_soc)
     span_v = float(ocv_v[-1] - ocv_v[0])
     span_soc = float(ocv_soc[-1] - ocv_soc[0])
     rc = RcModelParams(
@@ -181,11 +248,93 @@ def identify(
     rest_points = [
         (float(soc_at[p.rest_before]), rested_voltage(test, p.rest_before)) for p in pulses
     ]
-    return IdentificationResult(battery, fits, rcs, float(capacity), cap_source, rest_points, notes)
+    return IdentificationResult(
+        battery,
+        fits,
+        rcs,
+        float(capacity),
+        cap_source,
+        rest_points,
+        notes,
+        test,
+        soc_at,
+        by_soc,
+        test_temperature_c(test),
+    )
 
 
-def simulate_voltage(battery: BatteryParams, series: BatterySeries, soc0: float) -> np.ndarray:
-    """Open-loop 2-RC model voltage over a recording, from ``soc0`` with the measured current."""
+def test_temperature_c(test: BatterySeries) -> float:
+    """The test's temperature: the median of its sensor (NaN without one)."""
+    temps = test.temperature_c[np.isfinite(test.temperature_c)]
+    return float(np.median(temps)) if temps.size else math.nan
+
+
+def over_temperature(results: list[IdentificationResult], reference: int) -> BatteryParams:
+    """One parameter set with 2-RC tables over (temperature, SoC) from tests at several
+    temperatures (each result's ``temperature_c`` must be set and distinct).
+
+    ``results[reference]`` (the test nearest 25 degC) gives the OCV, capacity and RC model: the
+    OCV of a rested cell moves by a few millivolts over temperature, which this schema's
+    one OCV table leaves out. Every test's per-level fits are interpolated onto the reference's
+    SoC grid (held at their ends) so that the table is bilinear on one grid.
+    """
+    ref = results[reference]
+    temps = [r.temperature_c for r in results]
+    if any(math.isnan(t) for t in temps) or len(set(temps)) != len(temps):
+        raise IdentificationError(f"each test needs its own temperature, got {temps}")
+    order = np.argsort(temps)
+    grid = np.array([f.soc for f in ref.levels])
+
+    def table(get) -> ParamTable:
+        rows = []
+        for n in order:
+            lv = results[n].levels
+            rows.append(np.interp(grid, [f.soc for f in lv], [get(f) for f in lv]))
+        return ParamTable.from_arrays(grid, np.array(rows), [temps[n] for n in order])
+
+    thevenin = TheveninParams(
+        r0_ohm=table(lambda f: f.r0_ohm),
+        branches=(
+            RcBranch(table(lambda f: f.r1_ohm), table(lambda f: f.tau1_s / f.r1_ohm)),
+            RcBranch(table(lambda f: f.r2_ohm), table(lambda f: f.tau2_s / f.r2_ohm)),
+        ),
+    )
+    return replace(ref.battery, thevenin=thevenin)
+
+
+def thevenin_tables(by_soc: list[PulseFit]) -> TheveninParams:
+    """2-RC tables over SoC from per-level fits (C = tau / R)."""
+    soc = [f.soc for f in by_soc]
+
+    def table(values: list[float]) -> ParamTable:
+        return ParamTable.from_arrays(soc, values)
+
+    return TheveninParams(
+        r0_ohm=table([f.r0_ohm for f in by_soc]),
+        branches=(
+            RcBranch(
+                table([f.r1_ohm for f in by_soc]), table([f.tau1_s / f.r1_ohm for f in by_soc])
+            ),
+            RcBranch(
+                table([f.r2_ohm for f in by_soc]), table([f.tau2_s / f.r2_ohm for f in by_soc])
+            ),
+        ),
+    )
+
+
+def simulate_voltage(
+    battery: BatteryParams,
+    series: BatterySeries,
+    soc0: float,
+    soc_track: np.ndarray | None = None,
+    gap_s: float = 10.0,
+) -> np.ndarray:
+    """Open-loop 2-RC model voltage over a recording, from ``soc0`` with the measured current.
+
+    Across a logging gap (a step over ``gap_s``) the held current does not describe the
+    charge moved; with ``soc_track`` (the SoC the identification counted, e.g. from a tester's
+    reference) the model's SoC is set from it after each gap, its branch states kept.
+    """
     model = TheveninModel(
         battery.ocv_curve(),
         battery.thevenin,
@@ -198,14 +347,20 @@ def simulate_voltage(battery: BatteryParams, series: BatterySeries, soc0: float)
     for k in range(series.t_s.size):
         temp = None if math.isnan(temps[k]) else float(temps[k])
         if k:
-            x = model.step(
-                x, float(series.current_a[k - 1]), float(series.t_s[k] - series.t_s[k - 1]), temp
-            )
+            dt = float(series.t_s[k] - series.t_s[k - 1])
+            x = model.step(x, float(series.current_a[k - 1]), dt, temp)
+            if soc_track is not None and dt > gap_s:
+                x[0] = soc_track[k]
         out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp)
     return out
 
 
-def voltage_rmse(battery: BatteryParams, series: BatterySeries, soc0: float) -> float:
+def voltage_rmse(
+    battery: BatteryParams,
+    series: BatterySeries,
+    soc0: float,
+    soc_track: np.ndarray | None = None,
+) -> float:
     """RMSE (V) of :func:`simulate_voltage` against the recorded voltage."""
-    v = simulate_voltage(battery, series, soc0)
+    v = simulate_voltage(battery, series, soc0, soc_track)
     return float(np.sqrt(np.mean((v - series.voltage_v) ** 2)))
