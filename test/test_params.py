@@ -35,7 +35,7 @@ def test_bundled_files_load_and_round_trip(path: Path) -> None:
 
 def test_bundled_chemistries_present() -> None:
     chems = {load_battery_params(p).chemistry for p in BUNDLED}
-    assert {"sla", "lfp"} <= chems
+    assert {"sla", "lfp", "li_ion"} <= chems
 
 
 def _set(tree: dict, dotted: str, value) -> None:
@@ -116,6 +116,30 @@ def test_temperature_tables_must_have_one_row_per_temperature(tmp_path) -> None:
     path.write_text(yaml.safe_dump(tree))
     params = load_battery_params(path)
     assert params.thevenin.r0_ohm.at(0.5, 0.0) == pytest.approx(2 * params.thevenin.r0_ohm.at(0.5))
+
+
+def test_ocv_temperature_shift_is_validated_and_round_trips(tmp_path) -> None:
+    tree = base()
+    n = len(tree["ocv"]["soc"])
+    tree["ocv"]["temperature_c"] = [0.0, 25.0]
+    tree["ocv"]["offset_v"] = [[-0.02] * n]
+    path = tmp_path / "t.yaml"
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(ParamFileError, match=r"ocv.offset_v = .*2 rows"):
+        load_battery_params(path)
+    tree["ocv"]["offset_v"] = [[-0.02] * n, [0.0] * (n - 1)]
+    path.write_text(yaml.safe_dump(tree))
+    with pytest.raises(ParamFileError, match=rf"ocv.offset_v\[1\] = .*{n} values"):
+        load_battery_params(path)
+    tree["ocv"]["offset_v"] = [[-0.02] * n, [0.0] * n]
+    path.write_text(yaml.safe_dump(tree))
+    params = load_battery_params(path)
+    table = params.ocv.offset_table()
+    assert table is not None
+    assert table.at(0.5, 0.0) == pytest.approx(-0.02)
+    assert table.at(0.5, 12.5) == pytest.approx(-0.01)  # linear in temperature
+    again = parse_battery_params(battery_params_to_dict(params))
+    assert again.ocv == params.ocv
 
 
 def test_unreadable_and_malformed_yaml(tmp_path) -> None:

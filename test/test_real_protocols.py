@@ -35,8 +35,9 @@ CAPACITY_AH = 2.8
 TRUE = {"r0": 0.030, "r1": 0.010, "tau1": 8.0, "r2": 0.015, "tau2": 150.0}
 
 
-def cell(scale: float = 1.0) -> TheveninModel:
-    """A cell with known constant 2-RC parameters (resistances times ``scale``)."""
+def cell(scale: float = 1.0, ocv_shift_v: float = 0.0) -> TheveninModel:
+    """A cell with known constant 2-RC parameters (resistances times ``scale``), its OCV
+    shifted by ``ocv_shift_v``."""
     th = TheveninParams(
         ParamTable.constant(TRUE["r0"] * scale),
         (
@@ -50,7 +51,8 @@ def cell(scale: float = 1.0) -> TheveninModel:
             ),
         ),
     )
-    return TheveninModel(OCV, th, capacity_ah=CAPACITY_AH, coulomb_efficiency_charge=1.0)
+    ocv = OcvCurve(OCV.soc_points, OCV.ocv_points_v + ocv_shift_v)
+    return TheveninModel(ocv, th, capacity_ah=CAPACITY_AH, coulomb_efficiency_charge=1.0)
 
 
 def record(
@@ -102,8 +104,8 @@ def hppc_segments(levels: int = 3) -> list[tuple[float, float, float]]:
 
 
 @cache
-def hppc(scale: float = 1.0, temperature_c: float = 25.0) -> BatterySeries:
-    return record(hppc_segments(), cell(scale), temperature_c=temperature_c)
+def hppc(scale: float = 1.0, temperature_c: float = 25.0, ocv_shift_v: float = 0.0):
+    return record(hppc_segments(), cell(scale, ocv_shift_v), temperature_c=temperature_c)
 
 
 def test_repeated_time_stamps_are_dropped_and_backwards_time_refused(tmp_path: Path) -> None:
@@ -209,7 +211,7 @@ def test_a_recording_that_starts_with_a_recharge_starts_after_it() -> None:
 
 
 def test_two_temperatures_give_a_table_over_temperature(tmp_path: Path) -> None:
-    cold, warm = hppc(2.0, 0.0), hppc(1.0, 25.0)
+    cold, warm = hppc(2.0, 0.0, -0.02), hppc(1.0, 25.0)
     battery, results = identify_tests([cold, warm], None, LI_ION, None, None, None)
     r0 = battery.thevenin.r0_ohm
     assert r0.temperature_c == (0.0, 25.0)
@@ -217,6 +219,18 @@ def test_two_temperatures_give_a_table_over_temperature(tmp_path: Path) -> None:
     assert r0.at(0.5, 25.0) == pytest.approx(TRUE["r0"], rel=0.02)
     assert r0.at(0.5, 12.5) == pytest.approx(1.5 * TRUE["r0"], rel=0.02)  # bilinear
     assert results[0].capacity_source == "given"  # the cold test takes the warm one's
+    # The cold cell's OCV is 20 mV lower: the shift table finds it where the cold test's rests
+    # were (SoC 0.8-1); 1 mV: the rests' remaining relaxation (150-s branch, 20-30 min).
+    offset = battery.ocv.offset_table()
+    assert offset is not None and offset.temperature_c == (0.0, 25.0)
+    for soc in (0.85, 0.95):
+        assert offset.at(soc, 0.0) == pytest.approx(-0.02, abs=1e-3)
+        assert offset.at(soc, 25.0) == 0.0
+    model = TheveninModel(battery.ocv_curve(), battery.thevenin, CAPACITY_AH, ocv_offset=offset)
+    x = model.rested_state(0.9)
+    assert model.terminal_voltage(x, 0.0, 0.0) - model.terminal_voltage(x, 0.0, 25.0) == (
+        pytest.approx(offset.at(0.9, 0.0), abs=1e-12)
+    )
 
     # The same through the CLI, from CSV files without a temperature column.
     paths = []
@@ -234,4 +248,8 @@ def test_two_temperatures_give_a_table_over_temperature(tmp_path: Path) -> None:
     assert identify_main([*args, "--temperature-c", "0", "25", "--output", str(out)]) == 0
     data = yaml.safe_load(out.read_text())
     assert data["thevenin"]["temperature_c"] == [0.0, 25.0]
-    assert load_battery_params(out).chemistry == "li_ion"
+    assert data["ocv"]["temperature_c"] == [0.0, 25.0]
+    loaded = load_battery_params(out)
+    assert loaded.chemistry == "li_ion"
+    # The CSV's six decimals of voltage against the in-memory run: 0.2 mV.
+    np.testing.assert_allclose(loaded.ocv.offset_v, battery.ocv.offset_v, atol=2e-4)

@@ -46,6 +46,7 @@ class Ekf(FilterpyState, Estimator):
                 one_rc_equivalent(b.thevenin),
                 b.capacity_ah,
                 b.coulomb_efficiency_charge,
+                b.ocv.offset_table(),
             )
             self.kf = ExtendedKalmanFilter(dim_x=2, dim_z=1, dim_u=1)
             self.kf.R = np.array([[self.tuning["r"]]])

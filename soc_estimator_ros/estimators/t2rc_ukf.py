@@ -96,7 +96,13 @@ class T2rcUkf(FilterpyState, Estimator):
 
     def _make_model(self) -> TheveninModel:
         b = self.battery
-        return TheveninModel(b.ocv_curve(), b.thevenin, b.capacity_ah, b.coulomb_efficiency_charge)
+        return TheveninModel(
+            b.ocv_curve(),
+            b.thevenin,
+            b.capacity_ah,
+            b.coulomb_efficiency_charge,
+            b.ocv.offset_table(),
+        )
 
     def _init_state(self, soc: float, soc_var: float) -> None:
         if not hasattr(self, "kf"):

@@ -273,10 +273,11 @@ def over_temperature(results: list[IdentificationResult], reference: int) -> Bat
     """One parameter set with 2-RC tables over (temperature, SoC) from tests at several
     temperatures (each result's ``temperature_c`` must be set and distinct).
 
-    ``results[reference]`` (the test nearest 25 degC) gives the OCV, capacity and RC model: the
-    OCV of a rested cell moves by a few millivolts over temperature, which this schema's
-    one OCV table leaves out. Every test's per-level fits are interpolated onto the reference's
-    SoC grid (held at their ends) so that the table is bilinear on one grid.
+    ``results[reference]`` (the test nearest 25 degC) gives the OCV curve, capacity and RC
+    model; the other tests give the OCV's shift with temperature (``ocv.offset_v``: their own
+    rested voltages minus the reference curve). Every test's per-level fits are interpolated
+    onto the reference's SoC grid (held at their ends) so that the tables are bilinear on one
+    grid.
     """
     ref = results[reference]
     temps = [r.temperature_c for r in results]
@@ -299,7 +300,25 @@ def over_temperature(results: list[IdentificationResult], reference: int) -> Bat
             RcBranch(table(lambda f: f.r2_ohm), table(lambda f: f.tau2_s / f.r2_ohm)),
         ),
     )
-    return replace(ref.battery, thevenin=thevenin)
+    # The OCV's shift with temperature on the reference's OCV grid: each test's own rested
+    # curve minus the reference's, held beyond the SoC range the test's rests covered.
+    grid_ocv = np.array(ref.battery.ocv.soc)
+    ref_curve = ref.battery.ocv_curve()
+    offsets = []
+    for n in order:
+        own = results[n].battery.ocv
+        inside = np.clip(grid_ocv, own.soc[0], own.soc[-1])
+        own_curve = own.curve()
+        offsets.append(
+            tuple(
+                0.0 if n == reference else own_curve.ocv(float(x)) - ref_curve.ocv(float(x))
+                for x in inside
+            )
+        )
+    ocv = replace(
+        ref.battery.ocv, temperature_c=tuple(temps[n] for n in order), offset_v=tuple(offsets)
+    )
+    return replace(ref.battery, thevenin=thevenin, ocv=ocv)
 
 
 def thevenin_tables(by_soc: list[PulseFit]) -> TheveninParams:
@@ -340,6 +359,7 @@ def simulate_voltage(
         battery.thevenin,
         battery.capacity_ah,
         battery.coulomb_efficiency_charge,
+        battery.ocv.offset_table(),
     )
     x = model.rested_state(soc0)
     out = np.empty(series.t_s.size)

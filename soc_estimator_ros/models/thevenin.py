@@ -14,7 +14,8 @@ at the start of the step, for any dt::
     V_i <- a_i V_i + R_i (1 - a_i) I
     SoC <- SoC - eta(I) I dt / (3600 Q_ah)
 
-R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`ParamTable`).
+R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`ParamTable`), and
+so is the optional OCV shift with temperature: OCV(SoC, T) = OCV(SoC) + offset(T, SoC).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ class TheveninModel:
         params: TheveninParams,
         capacity_ah: float,
         coulomb_efficiency_charge: float = 1.0,
+        ocv_offset: ParamTable | None = None,
     ) -> None:
         if capacity_ah <= 0.0:
             raise ValueError(f"capacity_ah must be > 0, got {capacity_ah}")
@@ -67,6 +69,7 @@ class TheveninModel:
         self.params = params
         self.capacity_ah = capacity_ah
         self.coulomb_efficiency_charge = coulomb_efficiency_charge
+        self.ocv_offset = ocv_offset  # volts over (temperature, SoC), or None
         self.n_rc = len(params.branches)
         self.dim_x = 1 + self.n_rc
 
@@ -118,6 +121,8 @@ class TheveninModel:
         """:meth:`terminal_voltage` for every row of ``xs``."""
         soc = xs[:, 0]
         v = self.ocv.ocv_array(soc) - current_a * self.params.r0_ohm.at_array(soc, temperature_c)
+        if self.ocv_offset is not None:
+            v = v + self.ocv_offset.at_array(soc, temperature_c)
         return v - xs[:, 1:].sum(axis=1)
 
     def transition_jacobian(
@@ -137,6 +142,8 @@ class TheveninModel:
         """Terminal voltage in volts (eq. 14)."""
         soc = float(x[0])
         v = self.ocv.ocv(soc) - current_a * self.r0_at(soc, temperature_c)
+        if self.ocv_offset is not None:
+            v += self.ocv_offset.at(soc, temperature_c)
         for i in range(self.n_rc):
             v -= float(x[1 + i])
         return v
@@ -152,6 +159,11 @@ class TheveninModel:
             2.0 * eps
         )
         h[0, 0] = self.ocv.slope(soc) - current_a * dr0
+        if self.ocv_offset is not None:
+            off = self.ocv_offset
+            h[0, 0] += (off.at(soc + eps, temperature_c) - off.at(soc - eps, temperature_c)) / (
+                2.0 * eps
+            )
         return h
 
     def rested_state(self, soc: float) -> np.ndarray:
