@@ -64,10 +64,11 @@ def reference_soc(series: BatterySeries, capacity_ah: float) -> np.ndarray:
 
 
 def implied_capacity_ah(series: BatterySeries, cutoff_v: float) -> float:
-    """Charge removed when the voltage first reaches the cut-off (+20 mV), at the run's own
-    currents; NaN when it never does (the 0 degC runs stop after 2.32 Ah)."""
+    """Charge removed when the voltage first comes within 0.1 V of the cut-off, at the run's
+    own currents (the files are 1-s bin means: a run that ends at 2.5 V shows 2.54-2.62 V);
+    NaN when it never does."""
     assert series.soc_ref is not None and series.reference_capacity_ah is not None
-    hit = np.flatnonzero(series.voltage_v <= cutoff_v + 0.02)
+    hit = np.flatnonzero(series.voltage_v <= cutoff_v + 0.1)
     if hit.size == 0:
         return math.nan
     return float((series.soc_ref[0] - series.soc_ref[hit[0]]) * series.reference_capacity_ah)
@@ -142,8 +143,12 @@ def panasonic(data: Path, names: list[str], files: str, jobs: int) -> None:
     )
     extra = {}
     for p in runs:
-        q = implied_capacity_ah(load(p, PANASONIC_REF_AH), battery.limits.voltage_min_v)
-        extra[p.stem] = "no cut-off" if math.isnan(q) else f"{q:.3f} Ah to cut-off"
+        s = load(p, PANASONIC_REF_AH)
+        q = implied_capacity_ah(s, battery.limits.voltage_min_v)
+        end_ah = float((s.soc_ref[0] - s.soc_ref[-1]) * PANASONIC_REF_AH)
+        extra[p.stem] = f"{end_ah:.3f} Ah removed" + (
+            "" if math.isnan(q) else f", {q:.3f} Ah to the cut-off"
+        )
     work = [(n, p, PANASONIC_REF_AH, battery, battery.capacity_ah) for p in runs for n in names]
     with ProcessPoolExecutor(jobs) as pool:
         rows = list(pool.map(evaluate, work))
