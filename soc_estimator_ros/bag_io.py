@@ -53,6 +53,10 @@ TECHNOLOGY_BY_CHEMISTRY: dict[str, int] = {
     "li_ion": int(_MSG.POWER_SUPPLY_TECHNOLOGY_LION),
 }
 _TIME = TYPESTORE.types["builtin_interfaces/msg/Time"]
+FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+_ARRAY = TYPESTORE.types[FLOAT64_ARRAY]
+_LAYOUT = TYPESTORE.types["std_msgs/msg/MultiArrayLayout"]
+_DIM = TYPESTORE.types["std_msgs/msg/MultiArrayDimension"]
 
 
 class BagError(ValueError):
@@ -225,23 +229,36 @@ def battery_state_message(
     )
 
 
-def _stamped(index: int, conn: Any, msgs: Iterable[Any]) -> Iterator[tuple[int, int, Any, Any]]:
-    for msg in msgs:
-        yield _stamp_ns(msg), index, conn, msg
+def float64_array_message(label: str, data: Sequence[float]) -> Any:
+    """A rosbags ``std_msgs/Float64MultiArray`` with one labelled dimension (the node's
+    ``battery/soc_estimate`` layout, see ``outputs.py``)."""
+    return _ARRAY(
+        layout=_LAYOUT(
+            dim=[_DIM(label=label, size=len(data), stride=len(data))],
+            data_offset=0,
+        ),
+        data=np.asarray(data, dtype=np.float64),
+    )
 
 
-def write_battery_bag(
+def _tagged(
+    index: int, conn: Any, msgtype: str, stamped: Iterable[tuple[int, Any]]
+) -> Iterator[tuple[int, int, Any, str, Any]]:
+    for t, msg in stamped:
+        yield t, index, conn, msgtype, msg
+
+
+def write_bag(
     path: Path | str,
-    topics: Sequence[tuple[str, Iterable[Any]]],
+    topics: Sequence[tuple[str, str, Iterable[tuple[int, Any]]]],
     storage: str = "mcap",
     compress: bool = True,
 ) -> None:
-    """Write ``BatteryState`` messages to a new bag.
+    """Write messages to a new bag.
 
     Args:
         path: the bag directory to create (must not exist).
-        topics: ``(topic, messages)`` pairs, each in stamp order; a message's header stamp is
-            its bag time.
+        topics: ``(topic, message type, (bag time ns, message) pairs)``, each in time order.
         storage: ``"mcap"`` or ``"sqlite3"``.
         compress: zstd file compression (rosbag2's ``--compression-mode file``).
     """
@@ -251,12 +268,28 @@ def write_battery_bag(
         writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
     with writer:
         streams = [
-            _stamped(index, writer.add_connection(topic, BATTERY_STATE, typestore=TYPESTORE), msgs)
-            for index, (topic, msgs) in enumerate(topics)
+            _tagged(index, writer.add_connection(topic, msgtype, typestore=TYPESTORE), msgtype, m)
+            for index, (topic, msgtype, m) in enumerate(topics)
         ]
-        # Interleave the topics in stamp order, as a recorder would.
-        for stamp, _, conn, msg in heapq.merge(*streams, key=lambda item: item[:2]):
-            writer.write(conn, stamp, TYPESTORE.serialize_cdr(msg, BATTERY_STATE))
+        # Interleave the topics in time order, as a recorder would.
+        for stamp, _, conn, msgtype, msg in heapq.merge(*streams, key=lambda item: item[:2]):
+            writer.write(conn, stamp, TYPESTORE.serialize_cdr(msg, msgtype))
+
+
+def write_battery_bag(
+    path: Path | str,
+    topics: Sequence[tuple[str, Iterable[Any]]],
+    storage: str = "mcap",
+    compress: bool = True,
+) -> None:
+    """Write ``BatteryState`` messages to a new bag, each at its header stamp
+    (``topics``: ``(topic, messages)`` pairs in stamp order; see :func:`write_bag`)."""
+    write_bag(
+        path,
+        [(topic, BATTERY_STATE, ((_stamp_ns(m), m) for m in msgs)) for topic, msgs in topics],
+        storage,
+        compress,
+    )
 
 
 def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:

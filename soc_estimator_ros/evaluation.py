@@ -12,6 +12,7 @@ issue's window); convergence time is the time from the first sample until
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -42,16 +43,32 @@ class EstimateSeries:
     current_a: np.ndarray
     nis: np.ndarray
     status: tuple[str, ...]
+    innovation_v: np.ndarray
+    x: np.ndarray  # (n, dim_x): the state after each sample
+    p: np.ndarray  # (n, dim_x, dim_x): its covariance
+    state_names: tuple[str, ...]
 
 
-def run_estimator(estimator: Estimator, series: SampleSeries) -> EstimateSeries:
-    """Feed every sample of ``series`` to ``estimator`` in order and collect the estimates."""
+def run_estimator(
+    estimator: Estimator,
+    series: SampleSeries,
+    progress: Callable[[int, int], None] | None = None,
+) -> EstimateSeries:
+    """Feed every sample of ``series`` to ``estimator`` in order and collect the estimates.
+
+    ``progress(done, total)`` is called every 2 % of the samples (a long replay's progress bar).
+    """
     n = len(series.t_s)
     soc = np.empty(n)
     std = np.empty(n)
     v_pred = np.empty(n)
     nis = np.empty(n)
+    innov = np.empty(n)
+    xs: list[np.ndarray] = []
+    ps: list[np.ndarray] = []
+    names: tuple[str, ...] = ()
     status: list[str] = []
+    every = max(1, n // 50)
     temps = series.temperature_c
     for k in range(n):
         t = float(temps[k]) if temps is not None else math.nan
@@ -65,7 +82,13 @@ def run_estimator(estimator: Estimator, series: SampleSeries) -> EstimateSeries:
         std[k] = est.soc_std
         v_pred[k] = est.voltage_pred_v
         nis[k] = est.nis
+        innov[k] = est.innovation_v
+        xs.append(est.x)
+        ps.append(est.p)
+        names = est.state_names
         status.append(est.status.value)
+        if progress is not None and (k + 1) % every == 0:
+            progress(k + 1, n)
     return EstimateSeries(
         estimator=estimator.name,
         t_s=np.asarray(series.t_s, dtype=float),
@@ -76,6 +99,12 @@ def run_estimator(estimator: Estimator, series: SampleSeries) -> EstimateSeries:
         current_a=np.asarray(series.current_a, dtype=float),
         nis=nis,
         status=tuple(status),
+        innovation_v=innov,
+        x=np.array(xs, dtype=float).reshape(n, -1),
+        p=np.array(ps, dtype=float).reshape(n, len(names), len(names))
+        if n
+        else np.empty((0, 0, 0)),
+        state_names=names,
     )
 
 

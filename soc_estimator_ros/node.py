@@ -40,8 +40,8 @@ Outputs
     ``layout.dim[0]`` has ``size = stride = len(data)`` and the label ``"fields:"`` followed by
     one comma-separated label per element, e.g. for the hybrid estimator (state soc, v1, v2)
     ``fields:stamp_s,soc,soc_var,soc_std,voltage_pred_v,innovation_v,nis,x.soc,x.v1,x.v2,
-    P.soc.soc,P.soc.v1,...``; :func:`estimate_labels` builds it and :func:`decode_estimate`
-    turns a message back into a dict. ``innovation_v`` and ``nis`` are NaN when the sample ran
+    P.soc.soc,P.soc.v1,...``; ``outputs.py`` builds it and its ``decode_estimate`` turns a
+    message back into a dict. ``innovation_v`` and ``nis`` are NaN when the sample ran
     no voltage update. The state size changes when the estimator is switched; the label follows.
 
     ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, 1 Hz on the steady clock): one status
@@ -86,7 +86,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
@@ -114,6 +113,7 @@ from .conventions import (
 from .estimators import DEFAULT_ESTIMATOR, ESTIMATORS, PRESETS, StepStatus, make_estimator
 from .estimators.base import Estimate, Estimator
 from .input_gate import NS_PER_S, REJECTIONS, GateConfig, InputGate, Verdict
+from .outputs import estimate_labels, estimate_vector, layout_label
 from .pairing import ScalarPairer
 from .params import BatteryParams, ParamFileError, load_battery_params
 from .persistence import SavedState, resume_decision, save_state
@@ -123,16 +123,6 @@ PACKAGE = "soc_estimator_ros"
 DEFAULT_BATTERY_FILE = "sla_12v5ah.yaml"
 #: The SoC std below which diagnostics report ``converged: true``.
 CONVERGED_SOC_STD = 0.02
-#: Fixed leading fields of ``battery/soc_estimate`` (then x, then P row-major).
-ESTIMATE_FIELDS = (
-    "stamp_s",
-    "soc",
-    "soc_var",
-    "soc_std",
-    "voltage_pred_v",
-    "innovation_v",
-    "nis",
-)
 KNOWN_ESTIMATORS = tuple(sorted([*ESTIMATORS, *PRESETS]))
 #: Minimum SoC std used for (re-)initializations (an OCV on a steep curve is not exact).
 MIN_INIT_SOC_STD = 1e-3
@@ -354,43 +344,6 @@ PARAMETERS: tuple[ParamSpec, ...] = (
         float_range=(1e-4, 1.0),
     ),
 )
-
-
-def estimate_labels(state_names: Sequence[str]) -> list[str]:
-    """Labels of the ``battery/soc_estimate`` vector for an estimator's state names."""
-    names = list(state_names)
-    return [
-        *ESTIMATE_FIELDS,
-        *(f"x.{n}" for n in names),
-        *(f"P.{a}.{b}" for a in names for b in names),
-    ]
-
-
-def estimate_vector(stamp_s: float, est: Estimate) -> list[float]:
-    """The ``battery/soc_estimate`` data for an estimate (see the module docstring)."""
-    head = [
-        stamp_s,
-        est.soc,
-        est.soc_var,
-        est.soc_std,
-        est.voltage_pred_v,
-        est.innovation_v,
-        est.nis,
-    ]
-    return (
-        [float(v) for v in head]
-        + [float(v) for v in np.ravel(est.x)]
-        + [float(v) for v in np.ravel(est.p)]
-    )
-
-
-def decode_estimate(msg: Float64MultiArray) -> dict[str, float]:
-    """A ``battery/soc_estimate`` message as {label: value}."""
-    label = msg.layout.dim[0].label
-    if not label.startswith("fields:"):
-        raise ValueError(f"not a soc_estimate layout: {label!r}")
-    names = label.removeprefix("fields:").split(",")
-    return dict(zip(names, (float(v) for v in msg.data), strict=True))
 
 
 def default_state_file(node_name: str, namespace: str = "/") -> Path:
@@ -830,7 +783,7 @@ class SocEstimatorNode(Node):
         arr = Float64MultiArray()
         arr.layout.dim = [
             MultiArrayDimension(
-                label="fields:" + ",".join(labels), size=len(labels), stride=len(labels)
+                label=layout_label(est.state_names), size=len(labels), stride=len(labels)
             )
         ]
         arr.layout.data_offset = 0

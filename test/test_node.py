@@ -16,7 +16,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -26,14 +26,13 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
-from std_msgs.msg import Float32, Float64MultiArray  # noqa: E402
+from std_msgs.msg import Float32  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag  # noqa: E402
@@ -41,12 +40,9 @@ from soc_estimator_ros.conventions import ros_current_from_core  # noqa: E402
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
 from soc_estimator_ros.input_gate import Verdict  # noqa: E402
-from soc_estimator_ros.node import (  # noqa: E402
-    SocEstimatorNode,
-    decode_estimate,
-    estimate_labels,
-    main,
-)
+from soc_estimator_ros.live_replay import NodeLink, start_node, state_message  # noqa: E402
+from soc_estimator_ros.node import SocEstimatorNode, main  # noqa: E402
+from soc_estimator_ros.outputs import decode_estimate, estimate_labels  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
 from soc_estimator_ros.persistence import SavedState, load_state, save_state  # noqa: E402
 
@@ -81,17 +77,7 @@ def state_msg(
     present: bool = True,
 ) -> BatteryState:
     """A bridge-like BatteryState; ``current_a`` in the core's sign (positive = discharge)."""
-    msg = BatteryState()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), S)
-    msg.header.frame_id = "battery"
-    msg.voltage = float(voltage_v)
-    msg.current = float(ros_current_from_core(current_a))
-    msg.temperature = float(temperature_c)
-    msg.charge = msg.capacity = msg.percentage = math.nan
-    msg.design_capacity = 5.0
-    msg.present = present
-    msg.serial_number = "SIM-1"
-    return msg
+    return state_message(stamp_ns, voltage_v, current_a, temperature_c, 5.0, present, "SIM-1")
 
 
 def series_msgs(series: BatterySeries, n: int) -> list[BatteryState]:
@@ -119,12 +105,12 @@ def head(series: BatterySeries, n: int) -> BatterySeries:
     )
 
 
-class Harness:
-    """The node under test plus an io node publishing its input and recording its outputs."""
+class Harness(NodeLink):
+    """The node under test plus the link node (live_replay.py) that publishes its input and
+    records its outputs, in a namespace of its own."""
 
     def __init__(self, ctx: Context, tmp_path: Path, **params: Any) -> None:
-        self.ctx = ctx
-        self.ns = f"/t_{uuid.uuid4().hex[:8]}"
+        ns = f"/t_{uuid.uuid4().hex[:8]}"
         defaults = {
             "input_reliability": "reliable",
             "qos_depth": 1000,
@@ -132,64 +118,10 @@ class Harness:
             "initial_soc": "0.8",
         }
         defaults.update(params)
-        overrides = [Parameter(k, value=v) for k, v in defaults.items()]
-        self.node = SocEstimatorNode(namespace=self.ns, context=ctx, parameter_overrides=overrides)
-        self.io = rclpy.create_node(f"io_{uuid.uuid4().hex[:8]}", namespace=self.ns, context=ctx)
-        self.pub = self.io.create_publisher(BatteryState, "battery/state", RELIABLE)
-        self.soc: list[BatteryState] = []
-        self.est: list[Float64MultiArray] = []
-        self.diag: list[tuple[float, DiagnosticArray]] = []
-        self.io.create_subscription(BatteryState, "battery/soc", self.soc.append, RELIABLE)
-        self.io.create_subscription(
-            Float64MultiArray, "battery/soc_estimate", self.est.append, RELIABLE
+        super().__init__(ctx, start_node(ctx, ns, **defaults), ns, batch=BATCH)
+        assert self.wait_matched(needs_input=not defaults.get("current_topic")), (
+            "topics did not match"
         )
-        self.io.create_subscription(
-            DiagnosticArray, "/diagnostics", lambda m: self.diag.append((time.monotonic(), m)), 10
-        )
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.io)
-        self.destroyed = False
-        assert self.spin_until(
-            lambda: (
-                (self.pub.get_subscription_count() >= 1 or bool(defaults.get("current_topic")))
-                and self.node._soc_pub.get_subscription_count() >= 1
-                and self.node._est_pub.get_subscription_count() >= 1
-            ),
-            timeout_s=10.0,
-        ), "topics did not match"
-
-    def spin_until(self, done: Callable[[], bool], timeout_s: float = 10.0) -> bool:
-        end = time.monotonic() + timeout_s
-        while not done():
-            if time.monotonic() > end:
-                return False
-            self.executor.spin_once(timeout_sec=0.01)
-        return True
-
-    def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def send(self, msgs: list[BatteryState], expect_outputs: bool = True) -> None:
-        """Publish in batches; wait until the node answered each batch (or judged it)."""
-        for start in range(0, len(msgs), BATCH):
-            batch = msgs[start : start + BATCH]
-            want_out = len(self.soc) + len(batch)
-            want_judged = self.judged() + len(batch)
-            for m in batch:
-                self.pub.publish(m)
-            if expect_outputs:
-                ok = self.spin_until(
-                    lambda w=want_out: len(self.soc) >= w and len(self.est) >= w, 30.0
-                )
-            else:
-                ok = self.spin_until(lambda w=want_judged: self.judged() >= w, 30.0)
-            assert ok, f"node answered {len(self.soc)} of {want_out} samples"
-
-    def judged(self) -> int:
-        return sum(self.node.gate.counts.values())
 
     def set_params(self, **params: Any) -> list:
         """Set parameters through the node's parameter service (as ``ros2 param set`` does)."""
@@ -206,13 +138,6 @@ class Harness:
         assert self.spin_until(future.done, 10.0)
         self.io.destroy_client(cli)
         return future.result()
-
-    def close(self) -> None:
-        if not self.destroyed:
-            self.destroyed = True
-            self.executor.shutdown(timeout_sec=1.0)
-            self.node.destroy_node()
-            self.io.destroy_node()
 
 
 @pytest.fixture()

@@ -1,0 +1,299 @@
+"""Replay a recording through a live ``soc_estimator_node`` and record what it publishes.
+
+``soc_replay --live`` runs this: the node (node.py's :class:`SocEstimatorNode`, the same
+class ``ros2 run`` starts) and a link node that publishes the recording's ``BatteryState``
+samples and ``/clock`` (the node runs on sim time) and subscribes to the node's outputs, both
+in one rclpy context spun from this thread. The result is an ``EstimateSeries`` like the
+offline replay's, so the two can be compared sample for sample.
+
+Pace: lossless lock-step by default (publish a batch, wait until the node has answered every
+sample of it, then the next: as fast as the node keeps up, nothing queued out); with
+``rate`` the batches are also held back to ``rate`` times the recorded pace.
+
+DDS stays on this machine: before rclpy starts, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults to
+``LOCALHOST``, and ``ROS_DOMAIN_ID`` (when unset) to one derived from the process id, so a
+replay never talks to a robot's graph. Each run uses its own namespace.
+
+This module imports rclpy; the offline replay never imports it.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+import uuid
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Domain ids 1..101 are safe for Fast DDS's port arithmetic on every Linux host.
+_DOMAIN_MIN, _DOMAIN_SPAN = 1, 101
+
+
+def isolate_dds() -> None:
+    """Keep DDS on loopback with a domain of this process's own, unless already set."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_DOMAIN_ID", str(_DOMAIN_MIN + os.getpid() % _DOMAIN_SPAN))
+
+
+isolate_dds()
+
+import rclpy  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import BatteryState  # noqa: E402
+from std_msgs.msg import Float64MultiArray  # noqa: E402
+
+from .bag_io import BatterySeries  # noqa: E402
+from .conventions import ros_current_from_core  # noqa: E402
+from .evaluation import EstimateSeries  # noqa: E402
+from .node import SocEstimatorNode  # noqa: E402
+from .outputs import decode_estimate  # noqa: E402
+
+NS_PER_S = 1_000_000_000
+RELIABLE = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE
+)
+
+
+def state_message(
+    stamp_ns: int,
+    voltage_v: float,
+    current_a: float,
+    temperature_c: float = float("nan"),
+    design_capacity_ah: float = float("nan"),
+    present: bool = True,
+    serial_number: str = "",
+) -> BatteryState:
+    """A bridge-like rclpy ``BatteryState``; ``current_a`` in the core's sign (discharge +)."""
+    msg = BatteryState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), NS_PER_S)
+    msg.header.frame_id = "battery"
+    msg.voltage = float(voltage_v)
+    msg.current = float(ros_current_from_core(current_a))
+    msg.temperature = float(temperature_c)
+    msg.charge = msg.capacity = msg.percentage = float("nan")
+    msg.design_capacity = float(design_capacity_ah)
+    msg.present = present
+    msg.serial_number = serial_number
+    return msg
+
+
+def series_messages(series: BatterySeries, n: int | None = None) -> list[BatteryState]:
+    """The first ``n`` samples of a recording as bridge messages."""
+    count = len(series) if n is None else n
+    return [
+        state_message(
+            int(series.stamp_ns[k]),
+            float(series.voltage_v[k]),
+            float(series.current_a[k]),
+            float(series.temperature_c[k]),
+            series.design_capacity_ah,
+        )
+        for k in range(count)
+    ]
+
+
+@dataclass
+class NodeLink:
+    """A helper node beside a ``soc_estimator_node``: publishes its input (and ``/clock``),
+    records its outputs, and spins both from the calling thread.
+
+    ``soc`` and ``est`` collect ``battery/soc`` and ``battery/soc_estimate`` in arrival order;
+    ``diag`` collects ``(monotonic time, DiagnosticArray)``.
+    """
+
+    context: Context
+    node: SocEstimatorNode
+    namespace: str
+    batch: int = 100
+    soc: list[BatteryState] = field(default_factory=list)
+    est: list[Float64MultiArray] = field(default_factory=list)
+    diag: list[tuple[float, Any]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.io: Node = rclpy.create_node(
+            f"link_{uuid.uuid4().hex[:8]}", namespace=self.namespace, context=self.context
+        )
+        self.pub = self.io.create_publisher(BatteryState, "battery/state", RELIABLE)
+        self.clock_pub = self.io.create_publisher(Clock, "/clock", 10)
+        self.io.create_subscription(BatteryState, "battery/soc", self.soc.append, RELIABLE)
+        self.io.create_subscription(
+            Float64MultiArray, "battery/soc_estimate", self.est.append, RELIABLE
+        )
+        self.io.create_subscription(
+            DiagnosticArray, "/diagnostics", lambda m: self.diag.append((time.monotonic(), m)), 10
+        )
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.io)
+        self.closed = False
+
+    def wait_matched(self, needs_input: bool = True, timeout_s: float = 10.0) -> bool:
+        """Until the node's outputs (and, with ``needs_input``, its input) are matched."""
+        return self.spin_until(
+            lambda: (
+                (not needs_input or self.pub.get_subscription_count() >= 1)
+                and self.node._soc_pub.get_subscription_count() >= 1
+                and self.node._est_pub.get_subscription_count() >= 1
+            ),
+            timeout_s,
+        )
+
+    def spin_until(self, done: Callable[[], bool], timeout_s: float = 10.0) -> bool:
+        end = time.monotonic() + timeout_s
+        while not done():
+            if time.monotonic() > end:
+                return False
+            self.executor.spin_once(timeout_sec=0.01)
+        return True
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def judged(self) -> int:
+        """Samples the node's input gate has accepted or rejected so far."""
+        return sum(self.node.gate.counts.values())
+
+    def publish_clock(self, stamp_ns: int) -> None:
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(stamp_ns), NS_PER_S)
+        self.clock_pub.publish(msg)
+
+    def send(
+        self,
+        msgs: Sequence[BatteryState],
+        expect_outputs: bool = True,
+        rate: float | None = None,
+        clock: bool = False,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> None:
+        """Publish in batches; after each, wait until the node answered (or judged) it all.
+
+        ``rate``: hold the batches back to that multiple of the recorded pace. ``clock``:
+        publish each batch's first stamp on ``/clock`` first (the node on sim time: no sample
+        of the batch is older than the node's clock, so none is stale).
+        """
+        t_wall0 = time.monotonic()
+        t_rec0 = None
+        for start in range(0, len(msgs), self.batch):
+            batch = msgs[start : start + self.batch]
+            first = batch[0].header.stamp
+            first_ns = first.sec * NS_PER_S + first.nanosec
+            if rate is not None:
+                t_rec0 = first_ns if t_rec0 is None else t_rec0
+                lag = (first_ns - t_rec0) / NS_PER_S / rate - (time.monotonic() - t_wall0)
+                if lag > 0:
+                    self.spin_for(lag)
+            if clock:
+                self.publish_clock(first_ns)
+            want_out = len(self.soc) + len(batch)
+            want_judged = self.judged() + len(batch)
+            for m in batch:
+                self.pub.publish(m)
+            if expect_outputs:
+                ok = self.spin_until(
+                    lambda w=want_out: len(self.soc) >= w and len(self.est) >= w, 30.0
+                )
+            else:
+                ok = self.spin_until(lambda w=want_judged: self.judged() >= w, 30.0)
+            if not ok:
+                raise RuntimeError(f"the node answered {len(self.soc)} of {want_out} samples")
+            if progress is not None:
+                progress(start + len(batch), len(msgs))
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+            self.io.destroy_node()
+
+
+def start_node(context: Context, namespace: str, **params: Any) -> SocEstimatorNode:
+    """A ``soc_estimator_node`` in ``namespace`` with parameter overrides."""
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    return SocEstimatorNode(namespace=namespace, context=context, parameter_overrides=overrides)
+
+
+def replay_live(
+    series: BatterySeries,
+    battery_file: Path,
+    estimator: str,
+    initial_soc: float,
+    initial_soc_std: float,
+    rate: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> EstimateSeries:
+    """Every sample of ``series`` through a live node; its outputs as an ``EstimateSeries``.
+
+    Raises ``RuntimeError`` when the node leaves samples unanswered (it rejects samples its
+    input gate finds absurd: replay such a recording offline to see them).
+    """
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        with tempfile.TemporaryDirectory(prefix="soc_live_") as tmp:
+            ns = f"/soc_replay_{uuid.uuid4().hex[:8]}"
+            node = start_node(
+                context,
+                ns,
+                battery_file=str(battery_file),
+                estimator=estimator,
+                initial_soc=repr(float(initial_soc)),
+                initial_soc_std=float(initial_soc_std),
+                input_reliability="reliable",
+                qos_depth=1000,
+                state_file=str(Path(tmp) / "state.yaml"),
+                use_sim_time=True,
+            )
+            link = NodeLink(context, node, ns)
+            try:
+                if not link.wait_matched():
+                    raise RuntimeError("the node's topics did not match within 10 s")
+                link.send(series_messages(series), rate=rate, clock=True, progress=progress)
+                return estimates_from(link, series)
+            finally:
+                link.close()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def estimates_from(link: NodeLink, series: BatterySeries) -> EstimateSeries:
+    """The node's outputs, one per input sample, as an ``EstimateSeries``."""
+    rows = [decode_estimate(m) for m in link.est]
+    names = tuple(k.removeprefix("x.") for k in rows[0] if k.startswith("x.")) if rows else ()
+    n, d = len(rows), len(names)
+
+    def col(key: str) -> np.ndarray:
+        return np.array([r[key] for r in rows])
+
+    x = np.array([[r[f"x.{a}"] for a in names] for r in rows]).reshape(n, d)
+    p = np.array([[[r[f"P.{a}.{b}"] for b in names] for a in names] for r in rows])
+    return EstimateSeries(
+        estimator=link.node.estimator.name,
+        t_s=np.asarray(series.t_s, dtype=float),
+        soc=col("soc"),
+        soc_std=col("soc_std"),
+        voltage_v=np.asarray(series.voltage_v, dtype=float),
+        voltage_pred_v=col("voltage_pred_v"),
+        current_a=np.asarray(series.current_a, dtype=float),
+        nis=col("nis"),
+        status=("live",) * n,
+        innovation_v=col("innovation_v"),
+        x=x,
+        p=p.reshape(n, d, d),
+        state_names=names,
+    )

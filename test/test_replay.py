@@ -1,0 +1,164 @@
+"""``soc_replay``: the output bag, the progress bar, and clear errors for unusable inputs.
+
+Inputs are short excerpts (3000 samples, 5 minutes at 10 Hz) of a bundled field run, written
+as CSV by the tests themselves, so each test takes seconds.
+"""
+
+from __future__ import annotations
+
+import csv
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import bag_path
+from rosbags.highlevel import AnyReader
+
+from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag, write_battery_bag
+from soc_estimator_ros.estimators import make_estimator
+from soc_estimator_ros.evaluation import run_estimator
+from soc_estimator_ros.outputs import decode_estimate
+from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.replay import main as replay_main
+
+N = 3000
+
+
+@cache
+def excerpt() -> BatterySeries:
+    return read_battery_bag(bag_path("sla_field_run_1_full_rest")).window(0, N)
+
+
+def write_excerpt(path: Path) -> Path:
+    s = excerpt()
+    assert s.soc_ref is not None
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time_s", "current_a", "voltage_v", "temperature_c", "soc_ref"])
+        for row in zip(
+            s.stamp_ns * 1e-9, s.current_a, s.voltage_v, s.temperature_c, s.soc_ref, strict=True
+        ):
+            w.writerow([repr(float(v)) for v in row])
+    return path
+
+
+def run(args: list[str], capsys) -> tuple[int, str, str]:
+    code = replay_main(args)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_output_bag_holds_the_input_and_the_estimates_at_the_input_stamps(tmp_path, capsys):
+    src = write_excerpt(tmp_path / "run.csv")
+    params = ["--params", str(Path(__file__).parents[1] / "config" / "sla_12v5ah.yaml")]
+    bag = tmp_path / "out_bag"
+    est_csv = tmp_path / "est.csv"
+    code, out, _ = run(
+        [str(src), *params, "--output", str(est_csv), "--output-bag", str(bag)], capsys
+    )
+    assert code == 0 and f"bag: {bag}" in out
+    with AnyReader([bag]) as reader:
+        counts = {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
+        assert counts == {
+            "/battery/state": ("sensor_msgs/msg/BatteryState", N),
+            "/battery/soc_reference": ("sensor_msgs/msg/BatteryState", N),
+            "/battery/soc": ("sensor_msgs/msg/BatteryState", N),
+            "/battery/soc_estimate": ("std_msgs/msg/Float64MultiArray", N),
+        }
+        soc, stamps, est = [], [], []
+        for conn, t, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/battery/soc":
+                soc.append(msg.percentage)
+                stamps.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
+                assert t == stamps[-1]
+            elif conn.topic == "/battery/soc_estimate":
+                est.append(decode_estimate(msg))
+            elif conn.topic == "/battery/state" and len(soc) == 0:
+                assert msg.current == pytest.approx(-excerpt().current_a[0], abs=1e-5)  # ROS sign
+    # The CSV's stamps are microsecond-rounded floats: equal to the bag's within 1 us.
+    np.testing.assert_allclose(np.array(stamps), excerpt().stamp_ns, atol=1e3, rtol=0)
+    with est_csv.open() as fh:
+        csv_soc = np.array([float(r["soc"]) for r in csv.DictReader(fh)])
+    np.testing.assert_allclose(soc, csv_soc, atol=1e-6)  # the CSV keeps 6 significant digits
+    assert {"x.soc", "P.soc.soc", "innovation_v"} <= set(est[-1])
+    assert est[-1]["soc"] == pytest.approx(soc[-1])
+    assert est[-1]["soc_std"] ** 2 == pytest.approx(est[-1]["soc_var"])
+
+
+def test_output_bag_refuses_an_existing_directory(tmp_path, capsys):
+    src = write_excerpt(tmp_path / "run.csv")
+    (tmp_path / "taken").mkdir()
+    code, _, err = run(
+        [str(src), "--params", str(_sla()), "--output-bag", str(tmp_path / "taken")], capsys
+    )
+    assert code == 2 and "exists" in err
+
+
+def test_all_estimators_go_under_their_own_namespace(tmp_path, capsys):
+    src = write_excerpt(tmp_path / "run.csv")
+    bag = tmp_path / "all_bag"
+    code, _, _ = run([str(src), "--params", str(_sla()), "--all", "--output-bag", str(bag)], capsys)
+    assert code == 0
+    with AnyReader([bag]) as reader:
+        topics = {c.topic for c in reader.connections}
+    assert {"/hybrid/battery/soc", "/rc_kf/battery/soc_estimate", "/battery/state"} <= topics
+
+
+def test_progress_goes_to_stderr_only(tmp_path, capsys):
+    src = write_excerpt(tmp_path / "run.csv")
+    code, out, err = run([str(src), "--params", str(_sla()), "--progress"], capsys)
+    assert code == 0
+    assert "100 %" in err and "[####" in err
+    assert "%]" not in out and "####" not in out
+    code, out, err = run([str(src), "--params", str(_sla()), "--no-progress"], capsys)
+    assert code == 0 and err == ""
+
+
+def test_unusable_bags_give_one_clear_line(tmp_path, capsys):
+    s = excerpt()
+    from soc_estimator_ros.bag_io import battery_state_message
+
+    msgs = [battery_state_message(int(t), 12.0, 1.0) for t in s.stamp_ns[:20]]
+    write_battery_bag(tmp_path / "other_topic", [("/bms/state", msgs)])
+    code, _, err = run([str(tmp_path / "other_topic"), "--params", str(_sla())], capsys)
+    assert code == 2 and "/battery/state" in err and "/bms/state" in err
+    write_battery_bag(tmp_path / "empty", [("/battery/state", [])])
+    code, _, err = run([str(tmp_path / "empty"), "--params", str(_sla())], capsys)
+    assert code == 2 and "/battery/state" in err
+    assert err.count("\n") == 1
+
+
+def _sla() -> Path:
+    return Path(__file__).parents[1] / "config" / "sla_12v5ah.yaml"
+
+
+def test_live_replay_equals_the_offline_replay_sample_for_sample(tmp_path, capsys):
+    """The same samples through a running soc_estimator_node (sim time, lock-step): the node
+    runs the same estimator code on the same float64 inputs, so the estimate vector (float64)
+    agrees to rounding, 1e-12; the CSVs, which keep 6 significant digits, agree exactly."""
+    from soc_estimator_ros.live_replay import replay_live
+
+    live = replay_live(excerpt(), _sla(), "hybrid", float(excerpt().soc_ref[0]), 0.1)
+    offline = run_estimator(
+        make_estimator("hybrid", load_battery_params(_sla()), float(excerpt().soc_ref[0]), 0.1),
+        excerpt(),
+    )
+    assert live.soc.shape == offline.soc.shape == (N,)
+    np.testing.assert_allclose(live.soc, offline.soc, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(live.soc_std, offline.soc_std, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(live.x, offline.x, rtol=0, atol=1e-12)
+    assert live.state_names == offline.state_names
+
+    src = write_excerpt(tmp_path / "run.csv")
+    outs = []
+    for extra in ([], ["--live"]):
+        out = tmp_path / f"est{len(extra)}.csv"
+        code, text, _ = run(
+            [str(src), "--params", str(_sla()), "--output", str(out), *extra], capsys
+        )
+        assert code == 0
+        outs.append((out.read_text(), text))
+    assert outs[0][0] == outs[1][0]
+    assert outs[0][1].splitlines()[:-1] == outs[1][1].splitlines()[:-1]  # the same table
