@@ -3,7 +3,7 @@
 Prints numbers; asserts nothing (speed is checked by reading these, never by timed tests).
 Input: a bundled field-run bag when present, else a synthetic 10 Hz stream.
 
-    python benchmarks/step_time.py [--steps N] [--bag bags/sla_field_run_1_full]
+    python benchmarks/step_time.py [--steps N] [--bag bags/sla_field_run_1_full_rest]
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def load_input(bag: Path | None, steps: int):
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20000)
-    ap.add_argument("--bag", type=Path, default=ROOT / "bags" / "sla_field_run_1_full")
+    ap.add_argument("--bag", type=Path, default=ROOT / "bags" / "sla_field_run_1_full_rest")
     ap.add_argument("--battery", type=Path, default=ROOT / "config" / "sla_12v5ah.yaml")
     args = ap.parse_args()
     battery = load_battery_params(args.battery)

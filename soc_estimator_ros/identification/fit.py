@@ -7,13 +7,11 @@ lsqnonlin -> ``least_squares``).
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import OptimizeWarning, curve_fit, least_squares, lsq_linear
-from scipy.signal import lfilter
 
 from ..bag_io import BatterySeries
 from ..conventions import SECONDS_PER_HOUR
@@ -79,22 +77,37 @@ def step_current_a(
     return held
 
 
-def branch_response(t_s: np.ndarray, current_a: np.ndarray, tau_s: float) -> np.ndarray:
+def branch_response(
+    t_s: np.ndarray, current_a: np.ndarray, tau_s: float, block_exp: float = 40.0
+) -> np.ndarray:
     """Normalized RC-branch state x (V_i = R_i x) for a current held between samples.
 
-    Exact recursion ``x[k+1] = a x[k] + (1 - a) I[k]``, ``a = exp(-dt/tau)``, from rest
-    (x[0] = 0), run with ``scipy.signal.lfilter`` over stretches of equal sample spacing.
+    Exact recursion ``x[k+1] = a_k x[k] + (1 - a_k) I[k]``, ``a_k = exp(-dt_k/tau)``, from rest
+    (x[0] = 0), for any sample spacing. The products of the a_k telescope,
+    ``a_j ... a_(k-1) = exp(-(t_k - t_j)/tau)``, so within a block starting at sample b::
+
+        x[k] = e^(-(t_k - t_b)/tau) (x[b] + sum_{b<=j<k} e^((t_(j+1) - t_b)/tau) (1 - a_j) I[j])
+
+    a cumulative sum; blocks end before the exponent passes ``block_exp`` (no overflow, and
+    the sum's rounding stays 1e-16 of the current). A tester's jittery log (0.100/0.102/0.114 s
+    steps, then 1 s, then 60 s) costs a few numpy calls per block instead of one filter call
+    per run of equal steps (a million calls for the Panasonic HPPC).
     """
-    x = np.zeros(t_s.size)
-    dt = np.diff(t_s)
-    if dt.size == 0:
+    t = np.asarray(t_s, dtype=float)
+    x = np.zeros(t.size)
+    if t.size < 2:
         return x
-    breaks = np.flatnonzero(np.abs(np.diff(dt)) > 1e-6) + 1
-    bounds = [0, *breaks.tolist(), dt.size]
-    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-        a = math.exp(-float(dt[lo]) / tau_s)
-        y, _ = lfilter([1.0 - a], [1.0, -a], current_a[lo:hi], zi=[a * x[lo]])
-        x[lo + 1 : hi + 1] = y
+    dt = np.diff(t)
+    drive = -np.expm1(-dt / tau_s) * current_a[:-1]  # (1 - a_j) I[j]
+    b = 0
+    while b < t.size - 1:
+        # Samples b+1 .. e are in this block: their exponent (t - t_b)/tau <= block_exp.
+        e = int(np.searchsorted(t, t[b] + block_exp * tau_s, side="right")) - 1
+        e = min(max(e, b + 1), t.size - 1)
+        rel = (t[b + 1 : e + 1] - t[b]) / tau_s
+        sums = np.cumsum(np.exp(rel) * drive[b:e])
+        x[b + 1 : e + 1] = np.exp(-rel) * (x[b] + sums)
+        b = e
     return x
 
 

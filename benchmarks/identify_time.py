@@ -1,0 +1,60 @@
+"""Wall time of identifying each bundled pulse test (the way config/*.yaml were made).
+
+Target (issue "Parameter identification"): <= 10 s per pulse test. Prints numbers, asserts
+nothing. With ``--real-data DIR`` (default ``../shared/real-data`` when present) also the
+Panasonic NCR18650PF HPPC tests (25 and 0 degC) behind config/li_ion_ncr18650pf.yaml.
+
+    python benchmarks/identify_time.py [--real-data DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from soc_estimator_ros.bag_io import read_battery_bag, read_recording  # noqa: E402
+from soc_estimator_ros.identification.identify import identify  # noqa: E402
+from soc_estimator_ros.params import load_battery_params  # noqa: E402
+
+
+def timed(label: str, run) -> None:
+    t0 = time.perf_counter()
+    res = run()
+    wall = time.perf_counter() - t0
+    print(f"{label:<34} {len(res.pulses):>6} {wall:>8.1f}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--real-data", type=Path, default=ROOT.parent / "shared" / "real-data")
+    args = ap.parse_args()
+    print(f"{'test':<34} {'pulses':>6} {'wall_s':>8}")
+    for chem, file in (("sla", "sla_12v5ah.yaml"), ("lfp", "lfp_12v6ah.yaml")):
+        template = load_battery_params(ROOT / "config" / file)
+        test = read_battery_bag(ROOT / "bags" / f"{chem}_pulse_test", reference_topic=None)
+        slow = read_battery_bag(ROOT / "bags" / f"{chem}_slow_discharge", reference_topic=None)
+        timed(
+            f"{chem}_pulse_test + slow discharge",
+            lambda t=test, tp=template, sl=slow: identify(t, tp, slow=sl),
+        )
+    hppc = args.real_data / "panasonic18650pf_25C_HPPC.csv"
+    if hppc.is_file():
+        template = load_battery_params(ROOT / "config" / "li_ion_ncr18650pf.yaml")
+        for temp in ("25C", "0C"):
+            path = args.real_data / f"panasonic18650pf_{temp}_HPPC.csv"
+            test = replace(read_recording(path), reference_capacity_ah=2.9)
+            timed(f"panasonic18650pf_{temp}_HPPC", lambda t=test, tp=template: identify(t, tp))
+    else:
+        print(f"(no real data in {args.real_data}: the HPPC tests are skipped)")
+    print("(reading the inputs is not timed)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

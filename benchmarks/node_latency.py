@@ -1,0 +1,174 @@
+"""End-to-end latency, CPU and memory of ``soc_estimator_node`` at 100 Hz input.
+
+Starts the node as its own process (the console script, as ``ros2 run`` does), publishes
+``sensor_msgs/BatteryState`` at ``--rate-hz`` for ``--seconds`` from this process, and
+subscribes to the node's ``battery/soc``. Prints, for the steady part (after ``--warmup-s``):
+
+* latency, message published -> SoC received, matched by header stamp (p50, p99, max, ms);
+* messages lost;
+* the node's CPU as % of one core (``/proc/<pid>/stat`` utime + stime over the window);
+* the node's peak RSS (``VmHWM``).
+
+Targets (issue "Replay and evaluation"): <= 3 % of one core and p99 <= 2 ms at 100 Hz.
+Prints numbers and asserts nothing. DDS stays on loopback with a domain id of its own.
+
+    python benchmarks/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def cpu_ticks(pid: int) -> int:
+    """utime + stime of a process, in clock ticks."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[11]) + int(fields[12])  # fields 14 and 15 of stat(5)
+
+
+def peak_rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--estimator", default="hybrid")
+    ap.add_argument("--battery", type=Path, default=ROOT / "config" / "sla_12v5ah.yaml")
+    ap.add_argument("--rate-hz", type=float, default=100.0)
+    ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--warmup-s", type=float, default=5.0)
+    ap.add_argument("--domain-id", type=int, default=77)
+    ap.add_argument(
+        "--publish-rate-hz",
+        type=float,
+        default=0.0,
+        help="the node's publish_rate_hz (0: one output per input sample)",
+    )
+    args = ap.parse_args()
+
+    env = dict(os.environ)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id))
+    os.environ.update(env)  # before rclpy is imported
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import BatteryState
+
+    from soc_estimator_ros.live_replay import RELIABLE, state_message
+
+    ns = f"/bench_{os.getpid()}"
+    exe = Path(sys.executable).parent / "soc_estimator_node"
+    cmd = [
+        str(exe),
+        "--ros-args",
+        "-r",
+        f"__ns:={ns}",
+        "-p",
+        f"battery_file:={args.battery}",
+        "-p",
+        f"estimator:={args.estimator}",
+        "-p",
+        "input_reliability:=reliable",
+        "-p",
+        "initial_soc:=0.9",
+        "-p",
+        f"state_file:=/tmp/soc_bench_{os.getpid()}.yaml",
+        "-p",
+        f"publish_rate_hz:={args.publish_rate_hz}",
+    ]
+    node_proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    rclpy.init()
+    io = rclpy.create_node("bench_io", namespace=ns)
+    pub = io.create_publisher(BatteryState, "battery/state", RELIABLE)
+    received: dict[int, int] = {}
+
+    def on_soc(msg: BatteryState) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        received[stamp] = time.monotonic_ns()
+
+    io.create_subscription(BatteryState, "battery/soc", on_soc, RELIABLE)
+    executor = SingleThreadedExecutor()
+    executor.add_node(io)
+    try:
+        end = time.monotonic() + 20.0
+        while pub.get_subscription_count() < 1 or io.count_publishers(f"{ns}/battery/soc") < 1:
+            executor.spin_once(timeout_sec=0.05)
+            if time.monotonic() > end or node_proc.poll() is not None:
+                err = node_proc.stderr.read().decode() if node_proc.poll() is not None else ""
+                print(f"node_latency: the node did not come up\n{err}")
+                return 1
+        period_ns = int(1e9 / args.rate_hz)
+        n = int(args.seconds * args.rate_hz)
+        sent: dict[int, int] = {}  # stamp -> monotonic publish time
+        # Stamps: the wall clock of the send (a live bridge), so the node's stale check passes.
+        t_next = time.monotonic_ns()
+        ticks0 = ticks_t0 = None
+        for k in range(n):
+            while time.monotonic_ns() < t_next:
+                executor.spin_once(timeout_sec=max(0.0, (t_next - time.monotonic_ns()) * 1e-9))
+            if ticks0 is None and k >= args.warmup_s * args.rate_hz:
+                ticks0, ticks_t0 = cpu_ticks(node_proc.pid), time.monotonic()
+            stamp = time.time_ns()
+            current = 3.0 if (k // 200) % 2 else 12.0  # 2-s load steps
+            pub.publish(state_message(stamp, 12.6 - 0.02 * current, current, 25.0))
+            sent[stamp] = time.monotonic_ns()
+            t_next += period_ns
+        window_s = time.monotonic() - (ticks_t0 or time.monotonic())
+        ticks1 = cpu_ticks(node_proc.pid)
+        executor.spin_once(timeout_sec=0.5)
+        end = time.monotonic() + 2.0
+        while len(received) < len(sent) and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        rss = peak_rss_mib(node_proc.pid)
+    finally:
+        node_proc.send_signal(signal.SIGINT)
+        try:
+            node_proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            node_proc.kill()
+        executor.shutdown()
+        io.destroy_node()
+        rclpy.try_shutdown()
+        Path(f"/tmp/soc_bench_{os.getpid()}.yaml").unlink(missing_ok=True)
+
+    stamps = sorted(sent)
+    steady = stamps[int(args.warmup_s * args.rate_hz) :]
+    lat_ms = np.array([(received[s] - sent[s]) / 1e6 for s in steady if s in received])
+    # With a publish rate the node publishes the latest estimate on a timer: not every stamp.
+    lost = sum(1 for s in stamps if s not in received) if args.publish_rate_hz == 0 else 0
+    hz = os.sysconf("SC_CLK_TCK")
+    cpu_pct = 100.0 * (ticks1 - (ticks0 or ticks1)) / hz / window_s if window_s > 0 else 0.0
+    print(
+        f"soc_estimator_node, estimator {args.estimator}, {args.rate_hz:g} Hz input for "
+        f"{args.seconds:g} s ({len(steady)} samples after a {args.warmup_s:g}-s warm-up)"
+    )
+    print(
+        f"latency ms: p50 {np.median(lat_ms):.2f}  p99 {np.percentile(lat_ms, 99):.2f}  "
+        f"max {lat_ms.max():.2f}"
+    )
+    if args.publish_rate_hz == 0:
+        print(f"lost: {lost} of {len(stamps)}")
+    else:
+        rate = f"publish_rate_hz {args.publish_rate_hz:g}"
+        print(f"outputs: {len(received)} for {len(stamps)} inputs ({rate})")
+    print(f"node CPU: {cpu_pct:.1f} % of one core")
+    print(f"node peak RSS: {rss:.1f} MiB")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

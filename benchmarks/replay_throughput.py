@@ -1,0 +1,55 @@
+"""Offline replay throughput of each estimator on the bundled 10 Hz field runs, and peak RSS.
+
+Samples per second and times real time of ``evaluation.run_estimator`` (what ``soc_replay``
+runs), per estimator and bag; the process's peak RSS at the end. Target (issue "Replay and
+evaluation"): ``t2rc_ukf`` >= 1000x real time at 10 Hz. Prints numbers, asserts nothing.
+
+    python benchmarks/replay_throughput.py [--bags sla_field_run_1_full_rest,...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from soc_estimator_ros.bag_io import read_battery_bag  # noqa: E402
+from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
+from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
+from soc_estimator_ros.params import load_battery_params  # noqa: E402
+
+FILES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--bags", default="sla_field_run_1_full_rest,lfp_field_run_1_full_rest", help="names"
+    )
+    args = ap.parse_args()
+    print(f"{'bag':<28} {'estimator':<10} {'samples':>8} {'samples/s':>10} {'x_realtime':>10}")
+    for name in args.bags.split(","):
+        series = read_battery_bag(ROOT / "bags" / name)
+        battery = load_battery_params(ROOT / "config" / FILES[name[:3]])
+        span_s = float(series.t_s[-1] - series.t_s[0])
+        for est_name in sorted(ESTIMATORS):
+            est = make_estimator(est_name, battery, float(series.soc_ref[0]), 0.1)
+            t0 = time.perf_counter()
+            run_estimator(est, series)
+            wall = time.perf_counter() - t0
+            rate = len(series) / wall
+            print(
+                f"{name:<28} {est_name:<10} {len(series):>8} {rate:>10.0f} {span_s / wall:>10.0f}"
+            )
+    rss_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f"peak RSS of this process: {rss_mib:.1f} MiB (numpy, scipy, filterpy, rosbags loaded)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
