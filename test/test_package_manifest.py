@@ -32,6 +32,7 @@ ROSDEP_KEY = {
     "std_msgs": "std_msgs",
     "diagnostic_msgs": "diagnostic_msgs",
     "std_srvs": "std_srvs",
+    "rosgraph_msgs": "rosgraph_msgs",
     "builtin_interfaces": "builtin_interfaces",
     "rcl_interfaces": "rcl_interfaces",
     "launch": "launch",
