@@ -253,3 +253,22 @@ def test_two_temperatures_give_a_table_over_temperature(tmp_path: Path) -> None:
     assert loaded.chemistry == "li_ion"
     # The CSV's six decimals of voltage against the in-memory run: 0.2 mV.
     np.testing.assert_allclose(loaded.ocv.offset_v, battery.ocv.offset_v, atol=2e-4)
+
+
+def test_real_data_benchmark_skips_clearly_without_the_data(tmp_path: Path) -> None:
+    """benchmarks/real_data.py reads ../shared/real-data when present; elsewhere (a clean CI
+    checkout) it says so and exits 0, without touching the network or the repository."""
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "real_data.py"), "--data", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert (
+        out.stdout.strip()
+        == f"real_data: skipped: no measured data in {tmp_path} (pass --data DIR)"
+    )
