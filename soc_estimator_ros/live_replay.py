@@ -87,7 +87,9 @@ def state_message(
     return msg
 
 
-def series_messages(series: BatterySeries, n: int | None = None) -> list[BatteryState]:
+def series_messages(
+    series: BatterySeries, n: int | None = None, serial_number: str = ""
+) -> list[BatteryState]:
     """The first ``n`` samples of a recording as bridge messages."""
     count = len(series) if n is None else n
     return [
@@ -97,6 +99,7 @@ def series_messages(series: BatterySeries, n: int | None = None) -> list[Battery
             float(series.current_a[k]),
             float(series.temperature_c[k]),
             series.design_capacity_ah,
+            serial_number=serial_number,
         )
         for k in range(count)
     ]

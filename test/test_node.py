@@ -40,7 +40,12 @@ from soc_estimator_ros.conventions import ros_current_from_core  # noqa: E402
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
 from soc_estimator_ros.input_gate import Verdict  # noqa: E402
-from soc_estimator_ros.live_replay import NodeLink, start_node, state_message  # noqa: E402
+from soc_estimator_ros.live_replay import (  # noqa: E402
+    NodeLink,
+    series_messages,
+    start_node,
+    state_message,
+)
 from soc_estimator_ros.node import SocEstimatorNode, main  # noqa: E402
 from soc_estimator_ros.outputs import decode_estimate, estimate_labels  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
@@ -81,15 +86,8 @@ def state_msg(
 
 
 def series_msgs(series: BatterySeries, n: int) -> list[BatteryState]:
-    return [
-        state_msg(
-            int(series.stamp_ns[k]),
-            float(series.voltage_v[k]),
-            float(series.current_a[k]),
-            float(series.temperature_c[k]),
-        )
-        for k in range(n)
-    ]
+    """The first ``n`` samples of a bundled run, from the bridge "SIM-1"."""
+    return series_messages(series, n, serial_number="SIM-1")
 
 
 def head(series: BatterySeries, n: int) -> BatterySeries:
