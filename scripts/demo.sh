@@ -14,5 +14,5 @@ export MPLBACKEND=Agg
 OUT="${DEMO_OUT:-$ROOT/demo_out}"
 mkdir -p "$OUT"
 
-# The demo (the lead sets the final bags and options):
+# The demo: every estimator on one SLA and one LFP field run, one table, one plot per bag.
 .venv/bin/soc_replay bags/sla_field_run_1_full_rest bags/lfp_field_run_1_full_rest --all --plot-dir "$OUT" "$@"
