@@ -26,17 +26,42 @@ import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 
 from ..models.thevenin import TheveninModel
-from .base import Estimator
+from .base import Estimator, cholesky_lower
 from .filterpy_state import FilterpyState
+
+
+def batch_unscented_transform(sigmas, wm, wc, noise_cov=None, mean_fn=None, residual_fn=None):
+    """filterpy's ``unscented_transform`` with the weights' diagonal matrix never built.
+
+    filterpy computes ``y.T @ (diag(Wc) @ y)``; ``Wc[:, None] * y`` is that inner product
+    exactly (one non-zero term per element), so the result is the same to the bit. Custom
+    mean or residual functions go to filterpy's own transform.
+    """
+    if mean_fn is not None or residual_fn not in (None, np.subtract):
+        return unscented_transform(sigmas, wm, wc, noise_cov, mean_fn, residual_fn)
+    x = np.dot(wm, sigmas)
+    y = sigmas - x[np.newaxis, :]
+    cov = np.dot(y.T, wc[:, np.newaxis] * y)
+    if noise_cov is not None:
+        cov += noise_cov
+    return x, cov
 
 
 class BatchMerweScaledSigmaPoints(MerweScaledSigmaPoints):
     """filterpy's Van der Merwe sigma points and weights, generated without a Python loop."""
 
+    def __init__(self, n, alpha, beta, kappa, sqrt_method=None, subtract=None):
+        super().__init__(n, alpha, beta, kappa, sqrt_method, subtract)
+        # [0, +I, -I] as columns: U @ this is [0, U, -U], exactly (one +-1 term per element).
+        self._offsets_t = np.hstack([np.zeros((n, 1)), np.eye(n), -np.eye(n)])
+
     def sigma_points(self, x, P):  # noqa: N803 (filterpy's names)
-        u = np.linalg.cholesky((self.lambda_ + self.n) * P)  # lower: columns are the offsets
+        u = cholesky_lower((self.lambda_ + self.n) * P)  # lower: columns are the offsets
+        # Rows x, x + U^T, x - U^T, built transposed: the (2n+1, n) result is column-major,
+        # as np.vstack makes it from filterpy-style (x + U^T) blocks. The layout decides which
+        # BLAS kernel the transform's products take, and so their last bit.
         x = np.asarray(x, dtype=float)
-        return np.vstack([x, x + u.T, x - u.T])
+        return (x[:, np.newaxis] + u @ self._offsets_t).T
 
     @property
     def lambda_(self) -> float:
@@ -48,9 +73,15 @@ class BatchUnscentedKalmanFilter(UnscentedKalmanFilter):
 
     ``fx(sigmas, dt, **args)`` and ``hx(sigmas, **args)`` take and return arrays with one
     sigma point per row. The algebra is filterpy's (same sigma points, weights, unscented
-    transform and update equations); only the loops over sigma points are batched, which is
-    what makes the replay fast enough (see benchmarks/).
+    transform and update equations, evaluated to the same bits); only the loops over sigma
+    points are batched and the per-call overhead trimmed (:func:`batch_unscented_transform`,
+    LAPACK's Cholesky called directly, ``S^-1`` as ``1 / S`` for a scalar measurement), which
+    is what makes the replay fast enough (see benchmarks/).
     """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._wc_col = self.Wc[:, np.newaxis]
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args):
         fx = self.fx if fx is None else fx
@@ -60,13 +91,28 @@ class BatchUnscentedKalmanFilter(UnscentedKalmanFilter):
     def cross_variance(self, x, z, sigmas_f, sigmas_h):
         return ((sigmas_f - x) * self.Wc[:, np.newaxis]).T @ (sigmas_h - z)
 
+    def predict(self, dt=None, UT=None, fx=None, **fx_args):  # noqa: N803 (filterpy's names)
+        """filterpy's predict, with :func:`batch_unscented_transform` as the default UT."""
+        super().predict(dt, batch_unscented_transform if UT is None else UT, fx, **fx_args)
+
     def update(self, z, R=None, UT=None, hx=None, **hx_args):  # noqa: N803 (filterpy's names)
         hx = self.hx if hx is None else hx
         R = self.R if R is None else R  # noqa: N806
-        self.sigmas_h = hx(self.sigmas_f, **hx_args)
-        zp, self.S = unscented_transform(self.sigmas_h, self.Wm, self.Wc, R)
-        self.SI = np.linalg.inv(self.S)
-        pxz = self.cross_variance(self.x, zp, self.sigmas_f, self.sigmas_h)
+        self.sigmas_h = sigmas_h = hx(self.sigmas_f, **hx_args)
+        if UT is None and self.z_mean is None and self.residual_z is np.subtract:
+            # batch_unscented_transform inline, its residuals reused for the cross-covariance
+            # (filterpy computes the same differences twice).
+            wc = self._wc_col
+            zp = np.dot(self.Wm, sigmas_h)
+            dz = sigmas_h - zp
+            self.S = np.dot(dz.T, wc * dz) + R
+            pxz = ((self.sigmas_f - self.x) * wc).T @ dz
+        else:
+            UT = batch_unscented_transform if UT is None else UT  # noqa: N806
+            zp, self.S = UT(self.sigmas_h, self.Wm, self.Wc, R, self.z_mean, self.residual_z)
+            pxz = self.cross_variance(self.x, zp, self.sigmas_f, sigmas_h)
+        # A 1x1 inverse is 1 / s (what LAPACK's solve of s x = 1 returns), without the call.
+        self.SI = 1.0 / self.S if self.S.shape == (1, 1) else np.linalg.inv(self.S)
         self.K = pxz @ self.SI
         self.y = np.asarray(z, dtype=float) - zp
         self.x = self.x + self.K @ self.y
@@ -126,7 +172,11 @@ class T2rcUkf(FilterpyState, Estimator):
         return self.model.terminal_voltage_batch(xs, current_a, temp_c)[:, np.newaxis]
 
     def _process_noise(self, dt_s: float) -> np.ndarray:
-        return np.diag(np.asarray(self.tuning["q_diag"], dtype=float) * dt_s)
+        q = self.tuning["q_diag"]
+        if q is not getattr(self, "_q_key", None):  # diag(q) built once per tuning value
+            self._q_key = q
+            self._q_matrix = np.diag(np.asarray(q, dtype=float))
+        return self._q_matrix * dt_s  # == diag(q * dt): the zeros stay zeros
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         self.kf.Q = self._process_noise(dt_s)
@@ -139,8 +189,11 @@ class T2rcUkf(FilterpyState, Estimator):
         if self.t_last_s is None:
             # First sample: sigma points for the update come from the initial x, P.
             self.kf.sigmas_f = self.kf.points_fn.sigma_points(self.kf.x, self.kf.P)
-        r = np.array([[self._measurement_variance(current_a)]])
-        self.kf.update(np.array([voltage_v]), R=r, current_a=current_a, temp_c=temp_c)
+        var = self._measurement_variance(current_a)
+        if var != getattr(self, "_r_var", None):  # a new 1x1 R only when the variance changes
+            self._r_var = var
+            self._r = np.array([[var]])
+        self.kf.update(np.array([voltage_v]), R=self._r, current_a=current_a, temp_c=temp_c)
         innov = float(self.kf.y[0])
         s = float(self.kf.S[0, 0])
         return voltage_v - innov, innov, innov * innov / s

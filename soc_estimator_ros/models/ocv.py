@@ -34,6 +34,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from .tables import fast_interp
+
 #: Standard deviation of a SoC uniformly distributed on [0, 1]: the "no information" bound.
 UNINFORMATIVE_SOC_STD = 1.0 / math.sqrt(12.0)
 
@@ -117,7 +119,7 @@ class OcvCurve:
         The grid's two far end points lie on the linear extensions, so outside the table the
         result is the same straight line as :meth:`ocv`.
         """
-        return np.interp(soc, self._fine_soc, self._fine_v)
+        return fast_interp(soc, self._fine_soc, self._fine_v, None, None)
 
     # -- inverse -----------------------------------------------------------------------------
     def soc_at(self, ocv_v: float) -> float:

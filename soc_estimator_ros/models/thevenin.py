@@ -72,6 +72,10 @@ class TheveninModel:
         self.ocv_offset = ocv_offset  # volts over (temperature, SoC), or None
         self.n_rc = len(params.branches)
         self.dim_x = 1 + self.n_rc
+        # The branch tables in one tuple, R_1..R_n then C_1..C_n, for step_batch.
+        self._rc_tables = tuple(b.r_ohm for b in params.branches) + tuple(
+            b.c_f for b in params.branches
+        )
 
     # -- parameters --------------------------------------------------------------------------
     def r0_at(self, soc: float, temperature_c: float | None = None) -> float:
@@ -104,26 +108,41 @@ class TheveninModel:
     def step_batch(
         self, xs: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
     ) -> np.ndarray:
-        """:meth:`step` applied to every row of ``xs`` (shape ``(m, dim_x)``) at once."""
-        soc = xs[:, 0]
+        """:meth:`step` applied to every row of ``xs`` (shape ``(m, dim_x)``) at once.
+
+        All branches in one set of array operations (rows of ``(n_rc, m)`` arrays); each
+        element gets the arithmetic of :meth:`step`, in the same order. The result has the
+        memory layout of ``xs``.
+        """
+        xt = xs.T  # (dim_x, m): row 0 the SoC, rows 1.. the branch voltages
+        soc = xt[0]
         out = np.empty_like(xs)
+        ot = out.T
         eta = coulomb_efficiency(current_a, self.coulomb_efficiency_charge)
-        out[:, 0] = soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
-        for i, b in enumerate(self.params.branches):
-            r = b.r_ohm.at_array(soc, temperature_c)
-            a = np.exp(-dt_s / (r * b.c_f.at_array(soc, temperature_c)))
-            out[:, 1 + i] = a * xs[:, 1 + i] + r * (1.0 - a) * current_a
+        ot[0] = soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
+        if self.n_rc:
+            rc = np.array([t.at_array(soc, temperature_c) for t in self._rc_tables])
+            r, c = rc[: self.n_rc], rc[self.n_rc :]
+            a = np.exp(-dt_s / (r * c))
+            ot[1:] = a * xt[1:] + r * (1.0 - a) * current_a
         return out
 
     def terminal_voltage_batch(
         self, xs: np.ndarray, current_a: float, temperature_c: float | None = None
     ) -> np.ndarray:
         """:meth:`terminal_voltage` for every row of ``xs``."""
-        soc = xs[:, 0]
+        xt = xs.T
+        soc = xt[0]
         v = self.ocv.ocv_array(soc) - current_a * self.params.r0_ohm.at_array(soc, temperature_c)
         if self.ocv_offset is not None:
             v = v + self.ocv_offset.at_array(soc, temperature_c)
-        return v - xs[:, 1:].sum(axis=1)
+        if self.n_rc == 0:
+            return v - 0.0
+        # sum over the branch voltages, added left to right as ``xs[:, 1:].sum(axis=1)`` does
+        v_rc = xt[1]
+        for i in range(2, self.dim_x):
+            v_rc = v_rc + xt[i]
+        return v - v_rc
 
     def transition_jacobian(
         self, x: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
