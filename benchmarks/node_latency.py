@@ -10,9 +10,12 @@ subscribes to the node's ``battery/soc``. Prints, for the steady part (after ``-
 * the node's peak RSS (``VmHWM``).
 
 Targets (issue "Replay and evaluation"): <= 3 % of one core and p99 <= 2 ms at 100 Hz.
+``--baseline`` runs ``relay_node.py`` (an rclpy node that only republishes each message) in
+the node's place: the floor that rclpy and the DDS put under any Python node here.
 Prints numbers and asserts nothing. DDS stays on loopback with a domain id of its own.
 
     python benchmarks/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
+    python benchmarks/node_latency.py --baseline
 """
 
 from __future__ import annotations
@@ -58,6 +61,9 @@ def main() -> int:
         default=0.0,
         help="the node's publish_rate_hz (0: one output per input sample)",
     )
+    ap.add_argument(
+        "--baseline", action="store_true", help="run relay_node.py instead: rclpy's own floor"
+    )
     args = ap.parse_args()
 
     env = dict(os.environ)
@@ -90,6 +96,8 @@ def main() -> int:
         "-p",
         f"publish_rate_hz:={args.publish_rate_hz}",
     ]
+    if args.baseline:
+        cmd = [sys.executable, str(ROOT / "benchmarks" / "relay_node.py"), *cmd[1:4]]
     node_proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     rclpy.init()
     io = rclpy.create_node("bench_io", namespace=ns)
@@ -152,8 +160,9 @@ def main() -> int:
     lost = sum(1 for s in stamps if s not in received) if args.publish_rate_hz == 0 else 0
     hz = os.sysconf("SC_CLK_TCK")
     cpu_pct = 100.0 * (ticks1 - (ticks0 or ticks1)) / hz / window_s if window_s > 0 else 0.0
+    what = "relay_node.py (baseline)" if args.baseline else f"soc_estimator_node, {args.estimator}"
     print(
-        f"soc_estimator_node, estimator {args.estimator}, {args.rate_hz:g} Hz input for "
+        f"{what}, {args.rate_hz:g} Hz input for "
         f"{args.seconds:g} s ({len(steady)} samples after a {args.warmup_s:g}-s warm-up)"
     )
     print(

@@ -23,7 +23,7 @@ import yaml
 from .models.ocv import OcvCurve
 from .models.rc_saft import RcModelParams
 from .models.tables import ParamTable
-from .models.thevenin import RcBranch, TheveninParams
+from .models.thevenin import KineticParams, RcBranch, TheveninParams
 
 SCHEMA_VERSION = 1
 CHEMISTRIES = ("sla", "lfp", "li_ion")
@@ -324,6 +324,18 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
             )
         )
 
+    kinetic = None
+    if th.get("kinetic") is not None:
+        km = chk.mapping(th["kinetic"], "thevenin.kinetic")
+        kinetic = KineticParams(
+            *(
+                chk.table(
+                    chk.get(km, k, "thevenin.kinetic"), f"thevenin.kinetic.{k}", th_soc, temps
+                )
+                for k in ("a_v", "i0_a")
+            )
+        )
+
     filters = _parse_filters(chk, root.get("filters", {}))
     return BatteryParams(
         name=name,
@@ -335,7 +347,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         limits=limits,
         ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v, temperature_c=ocv_temps, offset_v=ocv_offsets),
         rc_model=rc_params,
-        thevenin=TheveninParams(r0_ohm=r0, branches=tuple(branches)),
+        thevenin=TheveninParams(r0_ohm=r0, branches=tuple(branches), kinetic=kinetic),
         filters=filters,
         source=source_text,
     )
@@ -387,6 +399,8 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
             for est, blk in params.filters.items()
         },
     }
+    if th.kinetic is not None:
+        out["thevenin"]["kinetic"] = {"a_v": table(th.kinetic.a_v), "i0_a": table(th.kinetic.i0_a)}
     if params.ocv.temperature_c:
         out["ocv"]["temperature_c"] = list(params.ocv.temperature_c)
         out["ocv"]["offset_v"] = [list(r) for r in params.ocv.offset_v]

@@ -197,6 +197,31 @@ def pulse_test_segments(pack: Pack) -> list[tuple[float, float]]:
     return segs
 
 
+#: Rate test pulse currents, in C (pack capacity per hour): the field runs' 0.1-7 C span.
+RATE_TEST_C = (0.2, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)
+
+
+def rate_test_segments(pack: Pack) -> list[tuple[float, float]]:
+    """An HPPC-style rate test: at each SoC level (after a 1-h rest), one 5-s discharge pulse
+    per rate of :data:`RATE_TEST_C` with 40-s rests, then 30 min at 0.2 C to the next level.
+
+    The pulses remove 2.3 % of the charge per level; five levels (SLA, 100 % to 39 %) or seven
+    (LFP, 100 % to 14 %). The instantaneous voltage drop against the pulse current is what the
+    2RC model's constant R0 cannot follow (Butler-Volmer kinetics): the identification's
+    ``--rate-test`` fits it.
+    """
+    c = pack.pack_capacity_ah
+    n_levels = 5 if pack.chemistry == "sla" else 7
+    segs = [(600.0, 0.0)]
+    for level in range(n_levels):
+        if level:
+            segs += [(3600.0, 0.0)]
+        for rate in RATE_TEST_C:
+            segs += [(5.0, rate * c), (40.0, 0.0)]
+        segs += [(1800.0, 0.2 * c)]
+    return segs + [(3600.0, 0.0)]
+
+
 def mission(rng: np.random.Generator, pack: Pack):
     """Endless seeded seeder-robot mission: yields (duration_s, pack current A) segments.
 
@@ -319,7 +344,7 @@ def check_recording(name: str, t, i, v, soc, capacity_ah, rest_ends: list[int] |
 class BagSpec:
     name: str
     chemistry: str
-    kind: str  # pulse_test | slow_discharge | field_run
+    kind: str  # pulse_test | rate_test | slow_discharge | field_run
     seed: int
     temp_c: float = 25.0
     start_soc: float = 1.0
@@ -411,6 +436,56 @@ SPECS = [
         temp_c=5.0,
         description="Seeder mission from full to 20 % at 5 degC ambient.",
     ),
+    # Appended (the stamps of a bag depend on its index here): rate tests and cold tests.
+    BagSpec(
+        "sla_rate_test",
+        "sla",
+        "rate_test",
+        16,
+        description="Rate test: at five SoC levels (100 % to 51 %, 1-h rests), 5-s pulses at "
+        "0.2, 0.5, 1, 2, 3, 4 and 6 C (1-30 A) with 40-s rests; 30 min at 0.2 C between levels.",
+    ),
+    BagSpec(
+        "lfp_rate_test",
+        "lfp",
+        "rate_test",
+        26,
+        description="Rate test: at seven SoC levels (100 % to 26 %, 1-h rests), 5-s pulses at "
+        "0.2, 0.5, 1, 2, 3, 4 and 6 C (1.2-36 A) with 40-s rests; 30 min at 0.2 C between "
+        "levels.",
+    ),
+    BagSpec(
+        "sla_pulse_test_5c",
+        "sla",
+        "pulse_test",
+        17,
+        temp_c=5.0,
+        description="The pulse test of sla_pulse_test at 5 degC ambient.",
+    ),
+    BagSpec(
+        "lfp_pulse_test_5c",
+        "lfp",
+        "pulse_test",
+        27,
+        temp_c=5.0,
+        description="The pulse test of lfp_pulse_test at 5 degC ambient.",
+    ),
+    BagSpec(
+        "sla_rate_test_5c",
+        "sla",
+        "rate_test",
+        18,
+        temp_c=5.0,
+        description="The rate test of sla_rate_test at 5 degC ambient.",
+    ),
+    BagSpec(
+        "lfp_rate_test_5c",
+        "lfp",
+        "rate_test",
+        28,
+        temp_c=5.0,
+        description="The rate test of lfp_rate_test at 5 degC ambient.",
+    ),
 ]
 
 
@@ -460,6 +535,13 @@ def simulate_bag(spec: BagSpec, capacity_ah: float) -> dict:
         run_segments(sim, segs, rec, tail_rate_hz=1.0)
         counts = np.cumsum([x.size for x in rec.t_s])
         rest_ends = [int(counts[0]) - 1] + [int(counts[k]) - 1 for k in range(2, len(segs), 2)]
+    elif spec.kind == "rate_test":
+        segs = rate_test_segments(pack)
+        run_segments(sim, segs, rec, tail_rate_hz=1.0)
+        counts = np.cumsum([x.size for x in rec.t_s])
+        rest_ends = [
+            int(counts[k]) - 1 for k, (dur, cur) in enumerate(segs) if dur >= 600.0 and cur == 0.0
+        ]
     elif spec.kind == "slow_discharge":
         slow_discharge(pack, rec)
     else:

@@ -2,8 +2,8 @@
 
     soc_identify INPUT [INPUT ...] --chemistry {li_ion,lfp,sla} [--capacity-ah X]
                  [--slow-discharge INPUT2] [--temperature-c T [T ...]]
-                 [--reference-capacity-ah Q] [--template FILE] [--current-sign ...] [--topic T]
-                 --output params.yaml [--plot fit.png]
+                 [--reference-capacity-ah Q] [--rate-test RATE [RATE ...]] [--template FILE]
+                 [--current-sign ...] [--topic T] --output params.yaml [--plot fit.png]
 
 INPUT is a rosbag2 bag (the bridge's BatteryState topic) or a CSV
 ``time_s,current_a,voltage_v[,temperature_c][,soc_ref]``: a seed-000 pulse test, an HPPC or
@@ -11,6 +11,9 @@ pulse blocks with regen (see ``segment.py``). A test starts full, or at the rest
 recharge it begins with. Several INPUTs are the same test at several temperatures (from each
 test's temperature sensor, or ``--temperature-c`` in the same order): the 2-RC tables get a
 temperature axis; the test nearest 25 degC gives the OCV, the capacity and the RC model.
+With ``--rate-test`` (one rate test per INPUT, in the same order: steps from rest to several
+currents at each SoC level), R0 becomes the ohmic part and the current-dependent overpotential
+is added (``kinetics.py``).
 Everything not identified (name, limits, filter tunings) comes from ``--template`` (default:
 the bundled file of the chemistry), so regenerating a bundled file keeps its tunings.
 """
@@ -69,14 +72,20 @@ def identify_tests(
     capacity_ah: float | None,
     slow: BatterySeries | None,
     progress,
+    rate_tests: list[BatterySeries] | None = None,
 ) -> tuple[BatteryParams, list[IdentificationResult]]:
     """One test, or one per temperature (see the module docstring)."""
     if temperatures_c is not None and len(temperatures_c) != len(tests):
         raise IdentificationError(
             f"--temperature-c gives {len(temperatures_c)} temperature(s) for {len(tests)} tests"
         )
+    if rate_tests is not None and len(rate_tests) != len(tests):
+        raise IdentificationError(
+            f"--rate-test gives {len(rate_tests)} rate test(s) for {len(tests)} tests"
+        )
+    rates = rate_tests or [None] * len(tests)
     if len(tests) == 1:
-        res = identify(tests[0], template, capacity_ah, slow, progress)
+        res = identify(tests[0], template, capacity_ah, slow, progress, rates[0])
         if temperatures_c is not None:
             res.temperature_c = temperatures_c[0]
         return res.battery, [res]
@@ -86,14 +95,14 @@ def identify_tests(
             "a test has no temperature sensor: give every test's temperature (--temperature-c)"
         )
     ref = int(np.argmin([abs(t - 25.0) for t in temps]))
-    first = identify(tests[ref], template, capacity_ah, slow, progress)
+    first = identify(tests[ref], template, capacity_ah, slow, progress, rates[ref])
     results: list[IdentificationResult] = []
     for n, test in enumerate(tests):
         if n == ref:
             res = first
         else:
             # The reference's capacity: a cold HPPC stops at the cut-off long before empty.
-            res = identify(test, template, first.capacity_ah, None, progress)
+            res = identify(test, template, first.capacity_ah, None, progress, rates[n])
             res.notes.append(f"capacity of the {temps[ref]:.1f} degC test used")
         res.temperature_c = temps[n]
         results.append(res)
@@ -121,6 +130,16 @@ def report(result: IdentificationResult) -> str:
         f"C_s = {rc.c_s_f:.1f} F (tau_s median {tau_s:.2f} s), "
         f"C_b = {rc.c_b_f:.0f} F"
     )
+    if result.kinetic:
+        lines.append(
+            f"{'rate level':>10} {'SoC':>6} {'R_mohm':>8} {'a_mV':>8} {'i0_A':>8} {'steps':>5} "
+            f"{'rmse_mV':>8}"
+        )
+        for n, k in enumerate(result.kinetic, 1):
+            lines.append(
+                f"{n:>10} {k.soc:6.3f} {1000 * k.r_ohm:8.2f} {1000 * k.a_v:8.1f} {k.i0_a:8.3f} "
+                f"{len(k.steps):>5} {1000 * k.rmse_v:8.2f}"
+            )
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
 
@@ -173,6 +192,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         help="capacity behind a CSV's soc_ref column: count the charge from it",
     )
+    ap.add_argument(
+        "--rate-test",
+        type=Path,
+        nargs="+",
+        help="rate test(s), one per INPUT in order: fits the current-dependent drop",
+    )
     ap.add_argument("--template", type=Path, help="file to take non-identified values from")
     add_recording_arguments(ap)
     ap.add_argument("--output", type=Path, required=True, help="parameter YAML to write")
@@ -193,6 +218,11 @@ def main(argv: list[str] | None = None) -> int:
             load_test(path, args.topic, sign, args.reference_capacity_ah) for path in args.input
         ]
         slow = load_test(args.slow_discharge, args.topic, sign) if args.slow_discharge else None
+        rate_tests = (
+            [load_test(path, args.topic, sign) for path in args.rate_test]
+            if args.rate_test
+            else None
+        )
         battery, results = identify_tests(
             tests,
             args.temperature_c,
@@ -200,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             args.capacity_ah,
             slow,
             progress=lambda msg: print(f"soc_identify: {msg}", file=sys.stderr, flush=True),
+            rate_tests=rate_tests,
         )
     except (IdentificationError, BagError, ParamFileError) as exc:
         print(f"soc_identify: error: {exc}", file=sys.stderr)
@@ -207,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     for result in results:
         print(report(result))
     command = shlex.join(["soc_identify", *(argv if argv is not None else sys.argv[1:])])
-    names = " and ".join(p.name for p in args.input)
+    names = " and ".join(p.name for p in [*args.input, *(args.rate_test or [])])
     header = (
         f"# Generated by soc_identify from {names}"
         + (f" and {args.slow_discharge.name}" if args.slow_discharge else "")

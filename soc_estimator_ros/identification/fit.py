@@ -156,7 +156,11 @@ def instantaneous_resistance(test: BatterySeries, p: Pulse) -> float:
 
 
 def fit_pulse(
-    test: BatterySeries, p: Pulse, soc_at: np.ndarray, onset_window_s: float = 180.0
+    test: BatterySeries,
+    p: Pulse,
+    soc_at: np.ndarray,
+    onset_window_s: float = 180.0,
+    min_tau_s: float = 0.5,
 ) -> PulseFit:
     """Fit one pulse window: eq. 17 (start), eq. 18 (``curve_fit``), lsqlin, lsqnonlin.
 
@@ -215,10 +219,10 @@ def fit_pulse(
         d2 = (design(q[5], q[6] + h2)[:, 3] - base[:, 3]) / h2 * q[3]
         return np.column_stack([base, d1, d2])
 
-    start = np.array([v_inf, r0, max(r1, 1e-6), max(r2, 1e-6), slope, tau1, tau2])
+    start = np.array([v_inf, r0, max(r1, 1e-6), max(r2, 1e-6), slope, max(tau1, min_tau_s), tau2])
     # Time constants: the fast branch within what 10 Hz samples resolve and a 3-min onset
     # window shows; the slow branch within the 1-h rest that measures it.
-    lower = np.array([v_inf - 0.5, 0.0, 0.0, 0.0, -1e3, 0.5, 60.0])
+    lower = np.array([v_inf - 0.5, 0.0, 0.0, 0.0, -1e3, min_tau_s, 60.0])
     upper = np.array([v_inf + 0.5, 1.0, 1.0, 1.0, 1e3, 300.0, 5000.0])
     start = np.clip(start, lower + 1e-9, upper - 1e-9)
     sol = least_squares(

@@ -21,6 +21,7 @@ from .fit import (
     fit_rc_pulse,
     monotone_ocv_table,
 )
+from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, with_kinetics
 from .segment import IdentificationError, segment_pulses, start_after_last_charge
 
 
@@ -39,6 +40,7 @@ class IdentificationResult:
     soc_track: np.ndarray | None = None  # the SoC the fits used, per sample of ``test``
     levels: list[PulseFit] = field(default_factory=list)  # one fit per SoC level (the tables)
     temperature_c: float = math.nan  # the test's temperature (median of its sensor)
+    kinetic: list[KineticFit] = field(default_factory=list)  # rate test fits, when given
 
 
 def zero_current_offset(
@@ -179,11 +181,14 @@ def identify(
     capacity_ah: float | None = None,
     slow: BatterySeries | None = None,
     progress: Callable[[str], None] | None = None,
+    rate_test: BatterySeries | None = None,
 ) -> IdentificationResult:
     """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test.
 
     The test starts full: at its first sample, or at the rest after its last recharge when it
     begins with one (reported). Every fit that fails is skipped and reported, never guessed.
+    With ``rate_test`` (a rate test at the same temperature, starting full), R0 becomes the
+    ohmic part of the drop and the Butler-Volmer overpotential is added (``kinetics.py``).
     """
     notes: list[str] = []
     if test.repeated_stamps:
@@ -205,13 +210,21 @@ def identify(
     pulses = segment_pulses(test, notes=notes)
     soc_at = 1.0 - charge_ah / capacity
     ocv_soc, ocv_v = _ocv_table(test, pulses, soc_at, slow, capacity, notes)
+    min_tau_s = 0.5  # what 10 Hz samples resolve
+    if rate_test is not None:
+        min_tau_s = RATE_PULSE_S
+        notes.append(
+            f"with a rate test: RC time constants >= {RATE_PULSE_S:g} s (the drop within its "
+            "pulses is the rate test's; a faster branch would add, within a second of any "
+            "load, the recovery a 30-min pulse builds over minutes)"
+        )
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
     for n, p in enumerate(pulses, 1):
         if progress:
             progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
         try:
-            fit = fit_pulse(test, p, soc_at)
+            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s)
             rc_fit = fit_rc_pulse(test, p)
         except (IdentificationError, RuntimeError, ValueError) as exc:
             notes.append(f"pulse at t = {test.t_s[p.start]:.0f} s skipped: {exc}")
@@ -227,6 +240,10 @@ def identify(
             "rates of each level)"
         )
     thevenin = thevenin_tables(by_soc)
+    kinetic: list[KineticFit] = []
+    if rate_test is not None:
+        kinetic = rate_test_fits(rate_test, float(capacity), notes)
+        thevenin = with_kinetics(thevenin, [kinetic])
     span_v = float(ocv_v[-1] - ocv_v[0])
     span_soc = float(ocv_soc[-1] - ocv_soc[0])
     rc = RcModelParams(
@@ -260,7 +277,20 @@ def identify(
         soc_at,
         by_soc,
         test_temperature_c(test),
+        kinetic,
     )
+
+
+def rate_test_fits(rate_test: BatterySeries, capacity_ah: float, notes: list[str]):
+    """The rate test's per-level kinetic fits; it starts full as the pulse test does (or at
+    the rest after a recharge it begins with), its current offset removed."""
+    first = start_after_last_charge(rate_test)
+    if first is not None:
+        rate_test = rate_test.window(first)
+        notes.append(f"rate test starts at the rest after its last recharge ({first} samples)")
+    rate_test = offset_corrected(rate_test, notes, "rate test")
+    soc = 1.0 - charge_removed_ah(rate_test, notes=notes) / capacity_ah
+    return fit_rate_test(rate_test, soc, capacity_ah, notes)
 
 
 def test_temperature_c(test: BatterySeries) -> float:
@@ -318,6 +348,10 @@ def over_temperature(results: list[IdentificationResult], reference: int) -> Bat
     ocv = replace(
         ref.battery.ocv, temperature_c=tuple(temps[n] for n in order), offset_v=tuple(offsets)
     )
+    if all(r.kinetic for r in results):
+        thevenin = with_kinetics(thevenin, [results[n].kinetic for n in order])
+    elif any(r.kinetic for r in results):
+        raise IdentificationError("a rate test for some temperatures only: give one per test")
     return replace(ref.battery, thevenin=thevenin, ocv=ocv)
 
 

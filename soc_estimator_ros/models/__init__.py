@@ -4,10 +4,11 @@ from .coulomb import coulomb_efficiency, coulomb_step
 from .ocv import UNINFORMATIVE_SOC_STD, OcvCurve
 from .rc_saft import RcModelParams, SaftRcModel
 from .tables import ParamTable
-from .thevenin import RcBranch, TheveninModel, TheveninParams
+from .thevenin import KineticParams, RcBranch, TheveninModel, TheveninParams
 
 __all__ = [
     "UNINFORMATIVE_SOC_STD",
+    "KineticParams",
     "OcvCurve",
     "ParamTable",
     "RcBranch",
