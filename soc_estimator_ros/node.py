@@ -1082,6 +1082,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (NodeConfigError, ParamFileError, ParameterException) as exc:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr)
         rc = 1
+    except RuntimeError:
+        # SIGINT shuts the context down at once; a callback already running then fails to
+        # publish ("publisher's context is invalid", rclpy's RCLError). That is the stop that
+        # was asked for, not a fault: the state is still saved below. Any other error raises.
+        if node is None or node.context.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
