@@ -125,10 +125,6 @@ class TheveninModel:
             drop = drop + kin.a_v.at_array(soc, temperature_c) * np.arcsinh(current_a / i0)
         return drop
 
-    def r0_at(self, soc: float, temperature_c: float | None = None) -> float:
-        """Series resistance in ohms."""
-        return self.params.r0_ohm.at(soc, temperature_c)
-
     def branch_at(
         self, i: int, soc: float, temperature_c: float | None = None
     ) -> tuple[float, float]:
