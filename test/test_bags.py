@@ -104,13 +104,13 @@ def test_pulse_test_rests_fall_with_soc(bag: Path) -> None:
 
 @pytest.mark.parametrize("bag", [b for b in ALL if "rate_test" in b.name], ids=lambda p: p.name)
 def test_rate_test_levels(bag: Path) -> None:
-    """tools/make_bags.py's rate test: per SoC level, steps from rest to 0.2-6 C; the rested
+    """tools/make_bags.py's rate test: per SoC level, steps from rest to 0.1-6 C; the rested
     voltage before each level falls with the SoC; the drop per ampere falls with the current
     (what the test is for: a constant R0 would give one value)."""
     m = meta(bag)
     s = series(bag)
     cap = s.design_capacity_ah  # the rates are of the nominal capacity (tools/make_bags.py)
-    loaded = s.current_a > 0.1 * cap
+    loaded = s.current_a > 0.05 * cap  # the 0.1 C pulse never dips to it (40 mA noise)
     starts = np.flatnonzero(loaded[1:] & ~loaded[:-1]) + 1
     level_starts = [
         k for n, k in enumerate(starts) if n == 0 or s.t_s[k] - s.t_s[starts[n - 1]] > 600
@@ -118,16 +118,18 @@ def test_rate_test_levels(bag: Path) -> None:
     assert len(level_starts) == (5 if m["chemistry"] == "sla" else 7)
     rest_v = s.voltage_v[np.array(level_starts) - 1]
     assert np.all(np.diff(rest_v) < 0), rest_v
-    first = starts[:7]  # the first level's seven pulses, in increasing current
+    first = starts[:8]  # the first level's eight pulses, in increasing current
     currents = s.current_a[first] - s.current_a[first - 1]
     # 0.05 C: two samples of 40 mA noise and 40 mA steps (0.06 A std) at 4 sigma, plus the
     # +-0.8 % gain error (bags/README.md "Sensors").
-    assert currents / cap == pytest.approx([0.2, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0], rel=0.01, abs=0.05)
+    assert currents / cap == pytest.approx(
+        [0.1, 0.2, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0], rel=0.01, abs=0.05
+    )
     per_amp = (s.voltage_v[first - 1] - s.voltage_v[first]) / currents
     # Sub-linear (Butler-Volmer, not a resistor): from 1 C on each step drops less per ampere,
-    # and 6 C less than half of 0.2 C per ampere. Below 1 C the decrease (a few mohm) is within
-    # one sample's noise (2 mV over 1 A: 3 mohm on a difference).
-    assert np.all(np.diff(per_amp[2:]) < 0), per_amp
+    # and 6 C less than half of 0.1 C per ampere. Below 1 C the decrease (a few mohm) is within
+    # one sample's noise (2 mV over 0.5-1 A: 3-6 mohm on a difference).
+    assert np.all(np.diff(per_amp[3:]) < 0), per_amp
     assert per_amp[-1] < 0.5 * per_amp[0], per_amp
 
 

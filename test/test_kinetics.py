@@ -147,14 +147,19 @@ def test_rate_test_recovers_known_kinetics() -> None:
 def test_with_kinetics_puts_the_fits_on_the_grid() -> None:
     battery = known_battery()
     fits = rate_test_fits(simulate_rate_test(battery), battery.capacity_ah, [])
-    th = with_kinetics(SLA.thevenin, [fits])
-    assert th.branches == SLA.thevenin.branches
-    assert th.r0_ohm.soc == SLA.thevenin.r0_ohm.soc
+    linear = replace(battery.thevenin, kinetic=None)  # one temperature, the SOC_GRID tables
+    th = with_kinetics(linear, [fits])
+    assert th.branches == linear.branches
+    assert th.r0_ohm.soc == linear.r0_ohm.soc
     lo = fits[0]
     # Below the lowest level the fit is held (no extrapolation of a Tafel slope).
     assert th.kinetic.a_v.at(0.3) == pytest.approx(lo.a_v, rel=1e-9)
     with pytest.raises(IdentificationError, match="rate test"):
-        with_kinetics(SLA.thevenin, [fits, fits])
+        with_kinetics(linear, [fits, fits])  # one list of fits per temperature row
+    # Tables over two temperatures (the SLA file's): one row per rate test.
+    two = with_kinetics(SLA.thevenin, [fits[:2], fits])
+    assert len(SLA.thevenin.r0_ohm.temperature_c) == 2
+    assert two.kinetic.a_v.as_array().shape == (2, len(SLA.thevenin.r0_ohm.soc))
 
 
 def test_rate_steps_need_a_rest_before_the_step() -> None:

@@ -22,7 +22,8 @@ BUNDLED = sorted(p for p in CONFIG.glob("*.yaml") if "schema_version" in p.read_
 
 
 def base() -> dict:
-    return yaml.safe_load((CONFIG / "sla_12v5ah.yaml").read_text())
+    """A valid file with one temperature (the LFP file; the SLA file has a temperature axis)."""
+    return yaml.safe_load((CONFIG / "lfp_12v6ah.yaml").read_text())
 
 
 @pytest.mark.parametrize("path", BUNDLED, ids=lambda p: p.name)

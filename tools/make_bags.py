@@ -198,14 +198,14 @@ def pulse_test_segments(pack: Pack) -> list[tuple[float, float]]:
 
 
 #: Rate test pulse currents, in C (pack capacity per hour): the field runs' 0.1-7 C span.
-RATE_TEST_C = (0.2, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)
+RATE_TEST_C = (0.1, 0.2, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)
 
 
 def rate_test_segments(pack: Pack) -> list[tuple[float, float]]:
     """An HPPC-style rate test: at each SoC level (after a 1-h rest), one 5-s discharge pulse
     per rate of :data:`RATE_TEST_C` with 40-s rests, then 30 min at 0.2 C to the next level.
 
-    The pulses remove 2.3 % of the charge per level; five levels (SLA, 100 % to 39 %) or seven
+    The pulses remove 2.4 % of the charge per level; five levels (SLA, 100 % to 39 %) or seven
     (LFP, 100 % to 14 %). The instantaneous voltage drop against the pulse current is what the
     2RC model's constant R0 cannot follow (Butler-Volmer kinetics): the identification's
     ``--rate-test`` fits it.
@@ -443,7 +443,8 @@ SPECS = [
         "rate_test",
         16,
         description="Rate test: at five SoC levels (100 % to 51 %, 1-h rests), 5-s pulses at "
-        "0.2, 0.5, 1, 2, 3, 4 and 6 C (1-30 A) with 40-s rests; 30 min at 0.2 C between levels.",
+        "0.1, 0.2, 0.5, 1, 2, 3, 4 and 6 C (0.5-30 A) with 40-s rests; 30 min at 0.2 C between "
+        "levels.",
     ),
     BagSpec(
         "lfp_rate_test",
@@ -451,7 +452,7 @@ SPECS = [
         "rate_test",
         26,
         description="Rate test: at seven SoC levels (100 % to 26 %, 1-h rests), 5-s pulses at "
-        "0.2, 0.5, 1, 2, 3, 4 and 6 C (1.2-36 A) with 40-s rests; 30 min at 0.2 C between "
+        "0.1, 0.2, 0.5, 1, 2, 3, 4 and 6 C (0.6-36 A) with 40-s rests; 30 min at 0.2 C between "
         "levels.",
     ),
     BagSpec(

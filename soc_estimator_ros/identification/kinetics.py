@@ -132,8 +132,9 @@ def fit_rate_test(
 ) -> list[KineticFit]:
     """One :class:`KineticFit` per SoC level of a rate test (steps closer than
     ``level_gap_s`` belong to one level), in increasing SoC."""
-    # Rest below 0.05 C (a Hall sensor's 40 mA of noise never reaches it); steps from 0.1 C.
-    steps = rate_steps(test, soc, rest_a=0.05 * capacity_ah, min_step_a=0.1 * capacity_ah)
+    # Rest below 0.05 C (a Hall sensor's 40 mA of noise never reaches it); steps from 0.08 C,
+    # so that a 0.1 C pulse counts: the light load a robot idles at (0.07 C on the seeder).
+    steps = rate_steps(test, soc, rest_a=0.05 * capacity_ah, min_step_a=0.08 * capacity_ah)
     if not steps:
         raise IdentificationError("rate test: no step from a rest to a load found")
     levels: list[list[RateStep]] = [[steps[0]]]
