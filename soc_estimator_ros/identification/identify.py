@@ -191,16 +191,7 @@ def identify(
     ohmic part of the drop and the Butler-Volmer overpotential is added (``kinetics.py``).
     """
     notes: list[str] = []
-    if test.repeated_stamps:
-        notes.append(f"input: {test.repeated_stamps} rows repeating a time stamp dropped")
-    first = start_after_last_charge(test)
-    if first is not None:
-        notes.append(
-            f"test starts at t = {test.t_s[first]:.0f} s, at the rest after the last recharge "
-            f"({first} samples before it skipped); SoC 1 there"
-        )
-        test = test.window(first)
-    test = offset_corrected(test, notes, "pulse test")
+    test = from_full(test, notes, "pulse test")
     if slow is not None:
         slow = offset_corrected(slow, notes, "slow discharge")
     charge_ah = charge_removed_ah(test, notes=notes)
@@ -281,14 +272,24 @@ def identify(
     )
 
 
-def rate_test_fits(rate_test: BatterySeries, capacity_ah: float, notes: list[str]):
-    """The rate test's per-level kinetic fits; it starts full as the pulse test does (or at
-    the rest after a recharge it begins with), its current offset removed."""
-    first = start_after_last_charge(rate_test)
+def from_full(test: BatterySeries, notes: list[str], label: str) -> BatterySeries:
+    """A test as the fits take it: from full (its first sample, or the rest after the last
+    recharge it begins with), its current offset removed; each choice noted."""
+    if test.repeated_stamps:
+        notes.append(f"{label}: {test.repeated_stamps} rows repeating a time stamp dropped")
+    first = start_after_last_charge(test)
     if first is not None:
-        rate_test = rate_test.window(first)
-        notes.append(f"rate test starts at the rest after its last recharge ({first} samples)")
-    rate_test = offset_corrected(rate_test, notes, "rate test")
+        notes.append(
+            f"{label} starts at t = {test.t_s[first]:.0f} s, at the rest after the last "
+            f"recharge ({first} samples before it skipped); SoC 1 there"
+        )
+        test = test.window(first)
+    return offset_corrected(test, notes, label)
+
+
+def rate_test_fits(rate_test: BatterySeries, capacity_ah: float, notes: list[str]):
+    """The rate test's per-level kinetic fits; it starts full as the pulse test does."""
+    rate_test = from_full(rate_test, notes, "rate test")
     soc = 1.0 - charge_removed_ah(rate_test, notes=notes) / capacity_ah
     return fit_rate_test(rate_test, soc, capacity_ah, notes)
 
