@@ -17,6 +17,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterable
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -524,10 +525,11 @@ def test_help_exits_zero_without_ros(capsys):
     assert "reset_soc_from_ocv" in out.stdout
 
 
-def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
-    """The console entry point end to end: spin, estimate, SIGINT -> state saved, exit 0."""
+@contextmanager
+def node_process(ctx, state_file: Path):
+    """The console entry point as its own process (coulomb, reliable input, state_file), and
+    an io node linked to it: yields (process, executor, publisher, outputs received)."""
     ns = f"/p_{uuid.uuid4().hex[:8]}"
-    state_file = tmp_path / "proc.yaml"
     proc = subprocess.Popen(
         [sys.executable, "-m", "soc_estimator_ros.node", "--ros-args",
          "-r", f"__ns:={ns}", "-p", f"state_file:={state_file}", "-p", "initial_soc:=0.8",
@@ -535,8 +537,8 @@ def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
         cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     io = rclpy.create_node(f"io_{uuid.uuid4().hex[:8]}", namespace=ns, context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
     try:
-        executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(io)
         got: list[BatteryState] = []
         pub = io.create_publisher(BatteryState, "battery/state", RELIABLE)
@@ -545,6 +547,20 @@ def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
         while (pub.get_subscription_count() < 1 or io.count_publishers(f"{ns}/battery/soc") < 1) \
                 and time.monotonic() < end:  # fmt: skip
             executor.spin_once(timeout_sec=0.05)
+        yield proc, executor, pub, got
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        executor.shutdown(timeout_sec=1.0)
+        io.destroy_node()
+
+
+def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
+    """The console entry point end to end: spin, estimate, SIGINT -> state saved, exit 0."""
+    state_file = tmp_path / "proc.yaml"
+    with node_process(ctx, state_file) as (proc, executor, pub, got):
+        end = time.monotonic() + 20.0
         for k in range(5):
             pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
         while len(got) < 5 and time.monotonic() < end:
@@ -558,12 +574,6 @@ def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
         saved = load_state(state_file)
         assert saved.soc == pytest.approx(got[-1].percentage, abs=1e-6)
         assert saved.estimator == "coulomb"
-        executor.shutdown(timeout_sec=1.0)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        io.destroy_node()
 
 
 def test_node_process_stops_cleanly_on_sigint_under_streaming_input(ctx, tmp_path):
@@ -571,26 +581,9 @@ def test_node_process_stops_cleanly_on_sigint_under_streaming_input(ctx, tmp_pat
     the context down (rclpy's "publisher's context is invalid"); the node still exits 0 with
     its state saved. Three stops, each in the middle of a 1 kHz stream."""
     for attempt in range(3):
-        ns = f"/s_{uuid.uuid4().hex[:8]}"
         state_file = tmp_path / f"stream{attempt}.yaml"
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "soc_estimator_ros.node", "--ros-args",
-             "-r", f"__ns:={ns}", "-p", f"state_file:={state_file}", "-p", "initial_soc:=0.8",
-             "-p", "input_reliability:=reliable", "-p", "estimator:=coulomb"],
-            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        )  # fmt: skip
-        io = rclpy.create_node(f"io_{uuid.uuid4().hex[:8]}", namespace=ns, context=ctx)
-        executor = SingleThreadedExecutor(context=ctx)
-        try:
-            executor.add_node(io)
-            got: list[BatteryState] = []
-            pub = io.create_publisher(BatteryState, "battery/state", RELIABLE)
-            io.create_subscription(BatteryState, "battery/soc", got.append, RELIABLE)
+        with node_process(ctx, state_file) as (proc, executor, pub, got):
             end = time.monotonic() + 20.0
-            while (pub.get_subscription_count() < 1
-                   or io.count_publishers(f"{ns}/battery/soc") < 1) \
-                    and time.monotonic() < end:  # fmt: skip
-                executor.spin_once(timeout_sec=0.05)
             k = 0
             while not got and time.monotonic() < end:  # the node is estimating
                 pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
@@ -604,12 +597,6 @@ def test_node_process_stops_cleanly_on_sigint_under_streaming_input(ctx, tmp_pat
             out, _ = proc.communicate(timeout=20)
             assert proc.returncode == 0, out
             assert load_state(state_file).estimator == "coulomb"
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            executor.shutdown(timeout_sec=1.0)
-            io.destroy_node()
 
 
 def test_main_takes_a_publish_racing_the_sigint_shutdown_as_a_clean_stop(tmp_path, monkeypatch):
