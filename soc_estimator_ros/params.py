@@ -321,6 +321,11 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
             RcBranch(
                 r_ohm=chk.table(chk.get(bm, "r_ohm", key), f"{key}.r_ohm", th_soc, temps),
                 c_f=chk.table(chk.get(bm, "c_f", key), f"{key}.c_f", th_soc, temps),
+                i_sat_a=(
+                    None
+                    if bm.get("i_sat_a") is None
+                    else chk.table(bm["i_sat_a"], f"{key}.i_sat_a", th_soc, temps)
+                ),
             )
         )
 
@@ -392,7 +397,11 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
             "soc": list(th.r0_ohm.soc),
             "temperature_c": temps,
             "r0_ohm": table(th.r0_ohm),
-            "branches": [{"r_ohm": table(b.r_ohm), "c_f": table(b.c_f)} for b in th.branches],
+            "branches": [
+                {"r_ohm": table(b.r_ohm), "c_f": table(b.c_f)}
+                | ({} if b.i_sat_a is None else {"i_sat_a": table(b.i_sat_a)})
+                for b in th.branches
+            ],
         },
         "filters": {
             est: {k: list(v) if isinstance(v, tuple) else v for k, v in blk.items()}

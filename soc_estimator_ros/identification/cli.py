@@ -133,12 +133,13 @@ def report(result: IdentificationResult) -> str:
     if result.kinetic:
         lines.append(
             f"{'rate level':>10} {'SoC':>6} {'R_mohm':>8} {'a_mV':>8} {'i0_A':>8} {'steps':>5} "
-            f"{'rmse_mV':>8}"
+            f"{'rmse_mV':>8} {'i_sat_A':>8} {'end_rmse_mV':>11}"
         )
         for n, k in enumerate(result.kinetic, 1):
+            sat = "-" if k.i_sat_a is None else f"{k.i_sat_a:.3f}"
             lines.append(
                 f"{n:>10} {k.soc:6.3f} {1000 * k.r_ohm:8.2f} {1000 * k.a_v:8.1f} {k.i0_a:8.3f} "
-                f"{len(k.steps):>5} {1000 * k.rmse_v:8.2f}"
+                f"{len(k.steps):>5} {1000 * k.rmse_v:8.2f} {sat:>8} {1000 * k.end_rmse_v:11.2f}"
             )
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)

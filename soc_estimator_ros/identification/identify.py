@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..bag_io import BatterySeries
+from ..models.ocv import OcvCurve
 from ..models.rc_saft import RcModelParams
 from ..models.tables import ParamTable
 from ..models.thevenin import RcBranch, TheveninModel, TheveninParams
@@ -21,7 +22,7 @@ from .fit import (
     fit_rc_pulse,
     monotone_ocv_table,
 )
-from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, with_kinetics
+from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
 from .segment import IdentificationError, segment_pulses, start_after_last_charge
 
 
@@ -233,7 +234,9 @@ def identify(
     thevenin = thevenin_tables(by_soc)
     kinetic: list[KineticFit] = []
     if rate_test is not None:
-        kinetic = rate_test_fits(rate_test, float(capacity), notes)
+        kinetic = rate_test_fits(
+            rate_test, float(capacity), notes, thevenin, OcvCurve(ocv_soc, ocv_v)
+        )
         thevenin = with_kinetics(thevenin, [kinetic])
     span_v = float(ocv_v[-1] - ocv_v[0])
     span_soc = float(ocv_soc[-1] - ocv_soc[0])
@@ -287,11 +290,29 @@ def from_full(test: BatterySeries, notes: list[str], label: str) -> BatterySerie
     return offset_corrected(test, notes, label)
 
 
-def rate_test_fits(rate_test: BatterySeries, capacity_ah: float, notes: list[str]):
-    """The rate test's per-level kinetic fits; it starts full as the pulse test does."""
+def rate_test_fits(
+    rate_test: BatterySeries,
+    capacity_ah: float,
+    notes: list[str],
+    thevenin: TheveninParams | None = None,
+    ocv: OcvCurve | None = None,
+) -> list[KineticFit]:
+    """The rate test's per-level kinetic fits; it starts full as the pulse test does. With the
+    pulse test's ``thevenin`` tables and ``ocv`` curve, each level also gets the fastest
+    branch's saturation current (``kinetics.fit_saturation``)."""
     rate_test = from_full(rate_test, notes, "rate test")
     soc = 1.0 - charge_removed_ah(rate_test, notes=notes) / capacity_ah
-    return fit_rate_test(rate_test, soc, capacity_ah, notes)
+    fits = fit_rate_test(rate_test, soc, capacity_ah, notes)
+    if thevenin is None or ocv is None:
+        return fits
+    fits = [fit_saturation(f, thevenin, ocv, capacity_ah) for f in fits]
+    sats = [f.i_sat_a for f in fits if f.i_sat_a is not None]
+    if sats:
+        notes.append(
+            f"rate test: fastest branch saturates at {min(sats):.2f}..{max(sats):.2f} A; pulse "
+            f"ends fitted within {1000 * max(f.end_rmse_v for f in fits):.1f} mV RMSE"
+        )
+    return fits
 
 
 def test_temperature_c(test: BatterySeries) -> float:

@@ -18,12 +18,14 @@ branch: see the report's RMSE).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from ..bag_io import BatterySeries
+from ..conventions import SECONDS_PER_HOUR
+from ..models.ocv import OcvCurve
 from ..models.tables import ParamTable
 from ..models.thevenin import KineticParams, TheveninParams
 from .segment import IdentificationError
@@ -34,12 +36,17 @@ RATE_PULSE_S = 5.0
 
 @dataclass(frozen=True)
 class RateStep:
-    """One step from rest to a load: the current step (A) and the voltage drop (V)."""
+    """One step from rest to a load: the current step (A) and the voltage drop (V) at its
+    first sample; at the load's last sample ``end_s`` later, the drop ``end_drop_v`` below the
+    same rest and the charge ``end_charge_ah`` the pulse had removed by then."""
 
     t_s: float
     soc: float
     current_a: float
     drop_v: float
+    end_s: float = 0.0
+    end_drop_v: float = math.nan
+    end_charge_ah: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -52,6 +59,8 @@ class KineticFit:
     i0_a: float
     rmse_v: float
     steps: tuple[RateStep, ...]
+    i_sat_a: float | None = None  # the fastest branch's saturation current (fit_saturation)
+    end_rmse_v: float = math.nan  # the pulses' last samples, with that saturation
 
     def drop_v(self, current_a: np.ndarray | float) -> np.ndarray:
         """The fitted drop at ``current_a``."""
@@ -86,9 +95,23 @@ def rate_steps(
                 j = k - 1
                 while j > 0 and resting[j - 1] and t[k - 1] - t[j - 1] <= 1.0:
                     j -= 1
-                di = float(i[k] - np.mean(i[j:k]))
-                dv = float(np.mean(v[j:k]) - v[k])
-                steps.append(RateStep(float(t[k]), float(soc[k]), di, dv))
+                i_rest, v_rest = float(np.mean(i[j:k])), float(np.mean(v[j:k]))
+                # The load lasts while the current stays within 10 % of the step's.
+                e = k
+                while e + 1 < t.size and abs(i[e + 1] - i[k]) <= 0.1 * abs(i[k]):
+                    e += 1
+                charge_ah = float(np.sum(i[k:e] * np.diff(t[k : e + 1]))) / SECONDS_PER_HOUR
+                steps.append(
+                    RateStep(
+                        float(t[k]),
+                        float(soc[k]),
+                        float(i[k]) - i_rest,
+                        v_rest - float(v[k]),
+                        float(t[e] - t[k]),
+                        v_rest - float(v[e]),
+                        charge_ah,
+                    )
+                )
         rest_since = math.nan
     return steps
 
@@ -157,15 +180,73 @@ def fit_rate_test(
     return sorted(fits, key=lambda f: f.soc)
 
 
+def fit_saturation(
+    fit: KineticFit,
+    thevenin: TheveninParams,
+    ocv: OcvCurve,
+    capacity_ah: float,
+    temperature_c: float | None = None,
+) -> KineticFit:
+    """``fit`` with the fastest branch's saturation current ``s`` (models/thevenin.py).
+
+    Each pulse of the level ends ``T`` <= 5 s after its step, the drop below the rest then::
+
+        dV(T) = R I + a asinh(I / i0)                    (this level's kinetic fit)
+              + R_1 s asinh(I / s) (1 - exp(-T / tau_1))  (the fastest branch, saturating)
+              + sum_{i>1} R_i I (1 - exp(-T / tau_i))     (the slower ones, linear)
+              + OCV(SoC) - OCV(SoC - q / Q)               (the charge q the pulse removed)
+
+    with R_i, tau_i from the pulse test at the level's SoC; ``s`` (one per level) by
+    ``least_squares`` on its logarithm within [0.01, 100] C (at 100 C the branch is linear
+    up to 6 C within 0.1 %).
+    """
+    steps = [st for st in fit.steps if st.end_s >= 1.0 and math.isfinite(st.end_drop_v)]
+    if not steps:
+        return fit
+    soc = fit.soc
+    branches = [
+        (
+            b.r_ohm.at(soc, temperature_c),
+            b.r_ohm.at(soc, temperature_c) * b.c_f.at(soc, temperature_c),
+        )
+        for b in thevenin.branches
+    ]
+    i = np.array([st.current_a for st in steps])
+    end = np.array([st.end_s for st in steps])
+    fixed = np.array(
+        [
+            float(fit.drop_v(st.current_a))
+            + sum(r * st.current_a * (1.0 - math.exp(-st.end_s / tau)) for r, tau in branches[1:])
+            + ocv.ocv(st.soc)
+            - ocv.ocv(st.soc - st.end_charge_ah / capacity_ah)
+            for st in steps
+        ]
+    )
+    measured = np.array([st.end_drop_v for st in steps])
+    r1, tau1 = branches[0]
+    grow = r1 * (1.0 - np.exp(-end / tau1))
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        sat = math.exp(p[0])
+        return fixed + grow * sat * np.arcsinh(i / sat) - measured
+
+    lo, hi = math.log(0.01 * capacity_ah), math.log(100.0 * capacity_ah)
+    sol = least_squares(residual, np.array([math.log(capacity_ah)]), bounds=([lo], [hi]))
+    rmse = float(np.sqrt(np.mean(sol.fun**2)))
+    return replace(fit, i_sat_a=float(math.exp(sol.x[0])), end_rmse_v=rmse)
+
+
 def with_kinetics(
     thevenin: TheveninParams, fits_by_temperature: list[list[KineticFit]]
 ) -> TheveninParams:
     """``thevenin`` with R0 (the ohmic part) and the overpotential from the rate test(s).
 
     One list of fits per row of the tables' temperature axis, in its order. Each level's fit is
-    interpolated onto the tables' SoC grid (held beyond the levels the test covered; i0 in its
-    logarithm, as it spans decades). The RC branches are kept: they were fitted to the pulse
-    test with the drop its own pulses showed, which the kinetic fit reproduces at that current.
+    interpolated onto the tables' SoC grid (held beyond the levels the test covered; i0 and the
+    saturation current in their logarithms, as they span decades). The RC branches are kept:
+    they were fitted to the pulse test with the drop its own pulses showed, which the kinetic
+    fit reproduces at that current; when every level has a saturation current
+    (:func:`fit_saturation`), the fastest branch gets it.
     """
     grid = np.asarray(thevenin.r0_ohm.soc)
     temps = thevenin.r0_ohm.temperature_c
@@ -186,9 +267,14 @@ def with_kinetics(
     r0 = np.maximum(rows(lambda f: f.r_ohm), floor)
     a = np.maximum(rows(lambda f: f.a_v), floor)
     i0 = np.exp(rows(lambda f: math.log(f.i0_a)))
+    branches = thevenin.branches
+    if all(f.i_sat_a is not None for fits in fits_by_temperature for f in fits):
+        i_sat = np.exp(rows(lambda f: math.log(f.i_sat_a)))
+        first = replace(branches[0], i_sat_a=ParamTable.from_arrays(grid, i_sat, temps))
+        branches = (first, *branches[1:])
     return TheveninParams(
         r0_ohm=ParamTable.from_arrays(grid, r0, temps),
-        branches=thevenin.branches,
+        branches=branches,
         kinetic=KineticParams(
             ParamTable.from_arrays(grid, a, temps), ParamTable.from_arrays(grid, i0, temps)
         ),

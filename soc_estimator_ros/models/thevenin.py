@@ -4,9 +4,10 @@ State ``x = [SoC, V_1, ..., V_n]`` (SoC as a fraction, branch voltages in volts)
 core's discharge-positive current I (the same sign as the paper's Thevenin model)::
 
     dSoC/dt = -eta(I) I / (3600 Q_ah)                 (eq. 11; the paper omits d/dt and 3600)
-    dV_i/dt = -V_i / (R_i C_i) + I / C_i              (eqs. 12-13)
+    dV_i/dt = -V_i / (R_i C_i) + I_i / C_i            (eqs. 12-13, with I_i = I)
     V_o = OCV(SoC) - sum_i V_i - I R_0 - eta(I)       (eq. 14; the paper calls R_0 "R_t")
     eta(I) = a asinh(I / i0)                          (optional; not in the papers)
+    I_i = s_i asinh(I / s_i)                          (optional per branch; not in the papers)
 
 eta is the charge-transfer overpotential of a symmetric Butler-Volmer reaction (a = n 2RT/F
 for n cells at transfer coefficient 0.5, i0 twice the exchange current; both are fitted, per
@@ -16,11 +17,19 @@ SoC 0.5: the SLA pack's drop per ampere falls from 217 mohm at 1 A to 55 mohm at
 LFP pack's from 57 to 22 mohm), so an R_0 identified at 0.2 C over-predicts the drop under
 the robot's 10-30 A by volts.
 
+The fastest branch saturates the same way. Fitted to 0.2 C pulses it holds a few seconds of
+the charge-transfer response (at low current the double layer charges through a large
+charge-transfer resistance, so part of eta builds over seconds); under 30 A that part is
+already in eta, and PyBaMM's packs 5 s into a 30 A step sit 150-250 mV (SLA) above a linear
+branch. A branch with a saturation current s_i is driven by I_i = s_i asinh(I / s_i): the
+linear branch below s_i, logarithmic above (identification/kinetics.py fits s_i to the rate
+test's pulses). Without s_i the branch is the papers'.
+
 Discretization, exact for a current held over the step (zero-order hold) and parameters frozen
 at the start of the step, for any dt::
 
     a_i = exp(-dt / (R_i C_i))
-    V_i <- a_i V_i + R_i (1 - a_i) I
+    V_i <- a_i V_i + R_i (1 - a_i) I_i
     SoC <- SoC - eta(I) I dt / (3600 Q_ah)
 
 R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`ParamTable`), and
@@ -42,10 +51,28 @@ from .tables import ParamTable
 
 @dataclass(frozen=True)
 class RcBranch:
-    """One parallel RC branch: resistance (ohm) and capacitance (farad) tables."""
+    """One parallel RC branch: resistance (ohm), capacitance (farad) and the optional
+    saturation current (ampere, > 0; ``None`` is the papers' linear branch) tables."""
 
     r_ohm: ParamTable
     c_f: ParamTable
+    i_sat_a: ParamTable | None = None
+
+    def drive_a(self, soc: float, current_a: float, temperature_c: float | None = None) -> float:
+        """The current ``I_i`` that charges the branch (module docstring), amperes."""
+        if self.i_sat_a is None or current_a == 0.0:
+            return current_a
+        s = self.i_sat_a.at(soc, temperature_c)
+        return s * math.asinh(current_a / s)
+
+    def drive_array(
+        self, soc: np.ndarray, current_a: float, temperature_c: float | None = None
+    ) -> np.ndarray | float:
+        """:meth:`drive_a` for an array of SoC at one current."""
+        if self.i_sat_a is None or current_a == 0.0:
+            return current_a
+        s = self.i_sat_a.at_array(soc, temperature_c)
+        return s * np.arcsinh(current_a / s)
 
 
 @dataclass(frozen=True)
@@ -101,6 +128,7 @@ class TheveninModel:
         self._rc_tables = tuple(b.r_ohm for b in params.branches) + tuple(
             b.c_f for b in params.branches
         )
+        self._saturating = any(b.i_sat_a is not None for b in params.branches)
 
     # -- parameters --------------------------------------------------------------------------
     def series_drop_v(
@@ -145,7 +173,8 @@ class TheveninModel:
         for i in range(self.n_rc):
             r, tau = self.branch_at(i, soc, temperature_c)
             a = math.exp(-dt_s / tau)
-            out[1 + i] = a * float(x[1 + i]) + r * (1.0 - a) * current_a
+            drive = self.params.branches[i].drive_a(soc, current_a, temperature_c)
+            out[1 + i] = a * float(x[1 + i]) + r * (1.0 - a) * drive
         return out
 
     def step_batch(
@@ -167,7 +196,13 @@ class TheveninModel:
             rc = np.array([t.at_array(soc, temperature_c) for t in self._rc_tables])
             r, c = rc[: self.n_rc], rc[self.n_rc :]
             a = np.exp(-dt_s / (r * c))
-            ot[1:] = a * xt[1:] + r * (1.0 - a) * current_a
+            if self._saturating:
+                drive = np.empty_like(r)  # (n_rc, m): a linear branch's row is the current
+                for i, b in enumerate(self.params.branches):
+                    drive[i] = b.drive_array(soc, current_a, temperature_c)
+                ot[1:] = a * xt[1:] + r * (1.0 - a) * drive
+            else:
+                ot[1:] = a * xt[1:] + r * (1.0 - a) * current_a
         return out
 
     def terminal_voltage_batch(
@@ -242,7 +277,9 @@ def one_rc_equivalent(params: TheveninParams) -> TheveninParams:
     The single branch keeps the total polarization resistance ``R_p = sum R_i`` (same
     steady-state voltage under a constant current) and the resistance-weighted mean time
     constant ``tau_p = sum R_i tau_i / R_p`` (same area under the step response), so it
-    matches the n-RC model at DC and in the charge it stores.
+    matches the n-RC model at DC and in the charge it stores. A branch's saturation current
+    (``i_sat_a``) is not carried: one branch cannot hold it for a part of its resistance, and
+    seed 001's EKF is the linear 1-RC model (the reduction matches at low current).
     """
     if len(params.branches) == 1:
         return params
