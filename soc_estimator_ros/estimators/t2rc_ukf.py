@@ -154,7 +154,7 @@ class T2rcUkf(FilterpyState, Estimator):
     def _init_state(self, soc: float, soc_var: float) -> None:
         if not hasattr(self, "kf"):
             self.model = self._make_model()
-            n = self.model.dim_x
+            n = self._rested_state(0.5).size
             points = BatchMerweScaledSigmaPoints(
                 n, self.tuning["alpha"], self.tuning["beta"], self.tuning["kappa"]
             )
@@ -162,9 +162,16 @@ class T2rcUkf(FilterpyState, Estimator):
                 dim_x=n, dim_z=1, dt=0.1, hx=self._hx, fx=self._fx, points=points
             )
             self.kf.R = np.array([[self.tuning["r"]]])
-        n = self.model.dim_x
-        self.kf.x = self.model.rested_state(soc)
-        self.kf.P = np.diag([soc_var] + [self.tuning["p0_v"]] * (n - 1))
+        self.kf.x = self._rested_state(soc)
+        self.kf.P = self._initial_covariance(soc_var)
+
+    def _rested_state(self, soc: float) -> np.ndarray:
+        """The filter's state for a pack at rest at ``soc``."""
+        return self.model.rested_state(soc)
+
+    def _initial_covariance(self, soc_var: float) -> np.ndarray:
+        """P0: ``soc_var`` for the SoC, ``p0_v`` for each branch voltage."""
+        return np.diag([soc_var] + [self.tuning["p0_v"]] * self.model.n_rc)
 
     def _fx(self, xs: np.ndarray, dt: float, current_a: float = 0.0, temp_c=None) -> np.ndarray:
         return self.model.step_batch(xs, current_a, dt, temp_c)
