@@ -99,3 +99,18 @@ def test_tables_over_soc_and_temperature() -> None:
     assert table.at(0.5, None) == pytest.approx(0.015)  # no temperature: the 25 degC row
     with pytest.raises(ValueError):
         ParamTable.from_arrays([0.0, 1.0], [[0.02, 0.04, 0.05]])
+
+
+def test_array_evaluation_follows_the_temperature_it_is_given() -> None:
+    """at_array keeps the row blended at the last temperature; a new temperature (or None,
+    NaN) must give that temperature's values, never a stale row."""
+    table = ParamTable.from_arrays(
+        [0.0, 0.5, 1.0],
+        [[0.02, 0.04, 0.03], [0.01, 0.02, 0.025], [0.005, 0.01, 0.02]],
+        [0.0, 25.0, 40.0],
+    )
+    socs = np.array([-0.1, 0.0, 0.3, 0.5, 0.77, 1.0, 1.2])
+    for temp in (25.0, 25.0, 3.0, None, 31.0, float("nan"), 40.0, 55.0, 3.0):
+        # 1e-15: a blended row interpolated vs two rows interpolated then blended (rounding).
+        expected = [table.at(float(s), temp) for s in socs]
+        assert table.at_array(socs, temp) == pytest.approx(expected, rel=1e-14, abs=1e-15)

@@ -72,6 +72,8 @@ class Hybrid(T2rcUkf):
         "q_inflate": 1.0e-5,  # SoC^2/s while the NIS is above the gate
         # The model-error state (item 5): the LFP file's light-load error after a burst, 36-60
         # mV, relaxing over minutes (README "Accuracy").
+        # Per cell about 10-15 mV; config/li_ion_ncr18650pf.yaml (one cell, a 2RC within 8 mV
+        # of its HPPC) sets 5 mV.
         "bias_std_v": 0.06,  # V: stationary std of the model's voltage error under load
         "bias_tau_s": 600.0,  # s: its correlation time
     }
@@ -84,10 +86,10 @@ class Hybrid(T2rcUkf):
     def _initial_covariance(self, soc_var: float) -> np.ndarray:
         p = np.zeros((self.model.dim_x + 1, self.model.dim_x + 1))
         p[:-1, :-1] = super()._initial_covariance(soc_var)
-        # As small as a branch voltage's: the start's voltage is what converges a wrong SoC,
-        # so it must not go to the bias (with the stationary 60 mV, a -30 % start on SLA took
-        # 20 minutes instead of seconds).
-        p[-1, -1] = self.tuning["p0_v"]
+        # As small as a branch voltage's (or the stationary variance, if smaller): the start's
+        # voltage is what converges a wrong SoC, so it must not go to the bias (with the
+        # stationary 60 mV, a -30 % start on SLA took 20 minutes instead of seconds).
+        p[-1, -1] = min(self.tuning["p0_v"], self.tuning["bias_std_v"] ** 2)
         return p
 
     def _fx(self, xs: np.ndarray, dt: float, current_a: float = 0.0, temp_c=None) -> np.ndarray:

@@ -52,6 +52,7 @@ class ParamTable:
     # The same grid and rows as float arrays, for :meth:`at_array` (built once, not per call).
     _soc_arr: np.ndarray = field(init=False, repr=False, compare=False)
     _rows_arr: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
+    _blend: tuple[float | None, np.ndarray] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         soc = [float(s) for s in self.soc]
@@ -69,6 +70,7 @@ class ParamTable:
         object.__setattr__(self, "_t_list", temps)
         object.__setattr__(self, "_soc_arr", np.array(soc, dtype=float))
         object.__setattr__(self, "_rows_arr", tuple(np.array(r, dtype=float) for r in rows))
+        object.__setattr__(self, "_blend", (None, self._rows_arr[0]))
 
     @classmethod
     def constant(cls, value: float) -> ParamTable:
@@ -125,9 +127,14 @@ class ParamTable:
             return fast_interp(soc, grid, rows[0], None, None)
         if temperature_c is None or temperature_c != temperature_c:
             temperature_c = 25.0
-        i, wt = _bracket(self._t_list, temperature_c)
-        v0 = fast_interp(soc, grid, rows[i], None, None)
-        return v0 + wt * (fast_interp(soc, grid, rows[i + 1], None, None) - v0)
+        # The row blended at this temperature, kept until the temperature changes (a filter
+        # calls this per sample at a temperature that moves slowly): one interpolation, not two.
+        cached_t, row = self._blend
+        if temperature_c != cached_t:
+            i, wt = _bracket(self._t_list, temperature_c)
+            row = rows[i] + wt * (rows[i + 1] - rows[i])
+            object.__setattr__(self, "_blend", (temperature_c, row))
+        return fast_interp(soc, grid, row, None, None)
 
     def as_array(self) -> np.ndarray:
         """The values as a ``(n_temperature, n_soc)`` array."""
