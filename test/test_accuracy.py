@@ -68,7 +68,6 @@ pytestmark = pytest.mark.skipif(not FIELD_RUNS, reason="no field-run bags under 
 SHORTFALLS = {
     ("hybrid", "lfp_field_run_1_full_rest", 0.0): "MAE 1.11 %, max 1.90 %",
     ("hybrid", "lfp_field_run_2_partial", 0.0): "MAE 2.54 %, max 3.26 % (start under load)",
-    ("t2rc_ukf", "lfp_field_run_2_partial", 0.0): "MAE 1.18 %",
     ("hybrid", "lfp_field_run_1_full_rest", -0.3): "max 2.15 % after 10 min",
     ("hybrid", "lfp_field_run_2_partial", -0.3): "MAE 2.42 %, max 3.07 %",
     ("hybrid", "lfp_field_run_3_cold", -0.3): "MAE 4.53 %, max 4.90 %",
