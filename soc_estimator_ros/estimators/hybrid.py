@@ -13,8 +13,7 @@ papers report:
    the voltage updates the SoC at light load and at rest, as DCC-EKF (seed 001) does. A file
    identified with a rate test (Butler-Volmer drop, saturating fastest branch) covers the rate
    test's currents: ``config/sla_12v5ah.yaml`` sets ``filters.hybrid.update_c_rate_max`` to its
-   top rate, 6 C (its model follows the field runs within 21-26 mV; with the 0.25 C gate the
-   hybrid's SLA run 2 stays at 1.07 % MAE, updating under load 0.97 %).
+   top rate, 6 C (its model follows the field runs within 21-26 mV; README "Accuracy").
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
    (seed 000 Fig. 11b: the Thevenin model's voltage error is larger than the RC model's under
    load). ``R = r + (r_per_a I)^2``, so heavy load pulls the SoC less than a rest does.

@@ -27,7 +27,7 @@ from ..bag_io import BatterySeries
 from ..conventions import SECONDS_PER_HOUR
 from ..models.ocv import OcvCurve
 from ..models.tables import ParamTable
-from ..models.thevenin import KineticParams, TheveninParams
+from ..models.thevenin import KineticParams, TheveninModel, TheveninParams
 from .segment import IdentificationError
 
 #: Shortest RC time constant when a rate test is given (its pulses' length, tools/make_bags.py).
@@ -203,14 +203,8 @@ def fit_saturation(
     steps = [st for st in fit.steps if st.end_s >= 1.0 and math.isfinite(st.end_drop_v)]
     if not steps:
         return fit
-    soc = fit.soc
-    branches = [
-        (
-            b.r_ohm.at(soc, temperature_c),
-            b.r_ohm.at(soc, temperature_c) * b.c_f.at(soc, temperature_c),
-        )
-        for b in thevenin.branches
-    ]
+    model = TheveninModel(ocv, thevenin, capacity_ah)
+    branches = [model.branch_at(k, fit.soc, temperature_c) for k in range(model.n_rc)]
     i = np.array([st.current_a for st in steps])
     end = np.array([st.end_s for st in steps])
     fixed = np.array(
