@@ -104,12 +104,18 @@ class Hybrid(T2rcUkf):
         return v[:, np.newaxis]
 
     def _process_noise(self, dt_s: float) -> np.ndarray:
-        n = self.model.dim_x
-        q = np.zeros((n + 1, n + 1))
-        q[:n, :n] = super()._process_noise(dt_s)
-        decay = math.exp(-2.0 * dt_s / self.tuning["bias_tau_s"])
-        q[n, n] = self.tuning["bias_std_v"] ** 2 * (1.0 - decay)
-        return q
+        # Built again only when dt or the tuning changes (a 10 Hz stream repeats its dt); the
+        # filters read Q and never write it.
+        t = self.tuning
+        key = (dt_s, t["q_diag"], t["bias_std_v"], t["bias_tau_s"])
+        if key != getattr(self, "_q_bias_key", None):
+            n = self.model.dim_x
+            q = np.zeros((n + 1, n + 1))
+            q[:n, :n] = super()._process_noise(dt_s)
+            decay = math.exp(-2.0 * dt_s / t["bias_tau_s"])
+            q[n, n] = t["bias_std_v"] ** 2 * (1.0 - decay)
+            self._q_bias_key, self._q_bias = key, q
+        return self._q_bias
 
     def _init_state(self, soc: float, soc_var: float) -> None:
         self.at_rest = False
