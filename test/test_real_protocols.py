@@ -23,10 +23,10 @@ from soc_estimator_ros.conventions import CurrentSign
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.identification.cli import main as identify_main
 from soc_estimator_ros.identification.fit import charge_removed_ah, step_current_a
-from soc_estimator_ros.identification.identify import identify
+from soc_estimator_ros.identification.identify import identify, ocv_shift_v
 from soc_estimator_ros.identification.segment import find_windows, start_after_last_charge
 from soc_estimator_ros.models import OcvCurve, ParamTable, RcBranch, TheveninModel, TheveninParams
-from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.params import OcvTable, load_battery_params
 
 ROOT = Path(__file__).resolve().parents[1]
 LI_ION = load_battery_params(ROOT / "config" / "li_ion_ncr18650pf.yaml")
@@ -253,6 +253,20 @@ def test_two_temperatures_give_a_table_over_temperature(tmp_path: Path) -> None:
     assert loaded.chemistry == "li_ion"
     # The CSV's six decimals of voltage against the in-memory run: 0.2 mV.
     np.testing.assert_allclose(loaded.ocv.offset_v, battery.ocv.offset_v, atol=2e-4)
+
+
+def test_the_ocv_shift_is_measured_at_the_other_tests_rests_not_between_them() -> None:
+    """A reference OCV with LFP's knee near full (the bundled LFP table's shape), another
+    temperature's rests 20 mV below it at SoC 0.5, 0.87 and 1.0 only: the shift is -20 mV
+    across the knee too, and held below the rests. The difference of the two curves (the
+    table before) is the knee's depth there: the other test's curve is a line between rests."""
+    soc = (0.2, 0.5, 0.8, 0.87, 0.9, 0.95, 0.975, 0.99, 1.0)
+    volts = (12.74, 13.08, 13.24, 13.26, 13.265, 13.275, 13.356, 13.83, 14.41)
+    ref = OcvTable(soc, volts)
+    own_soc = (0.5, 0.87, 1.0)
+    own = OcvTable(own_soc, tuple(ref.curve().ocv(s) - 0.02 for s in own_soc))
+    np.testing.assert_allclose(ocv_shift_v(ref, own), -0.02, atol=1e-12)
+    assert own.curve().ocv(0.95) - ref.curve().ocv(0.95) > 0.3  # the old table's error
 
 
 def test_real_data_benchmark_skips_clearly_without_the_data(tmp_path: Path) -> None:
