@@ -68,6 +68,25 @@ class BatchMerweScaledSigmaPoints(MerweScaledSigmaPoints):
         return self.alpha**2 * (self.n + self.kappa) - self.n
 
 
+def check_sigma_weights(name: str, points: MerweScaledSigmaPoints) -> None:
+    """Refuse sigma-point parameters that give a covariance weight < 0.
+
+    With every Wc >= 0 the predicted covariance is a sum of positive semi-definite terms plus
+    Q, so it stays positive definite whatever the model does between the sigma points. A
+    negative centre weight (alpha < 0.52 at beta 2, kappa 0: Wc0 = 4 - alpha^2 - 1/alpha^2)
+    lets it lose that where the transition is nonlinear (branch tables changing with the SoC
+    across the points): measured, the hybrid with alpha 0.03 on LFP field run 2 grew a branch
+    variance to 1e74 V^2 and failed its Cholesky 34 minutes in.
+    """
+    if points.n + points.lambda_ <= 0.0 or float(np.min(points.Wc)) < 0.0:
+        raise ValueError(
+            f"{name}: sigma points alpha={points.alpha:g}, beta={points.beta:g}, "
+            f"kappa={points.kappa:g} give a negative covariance weight (Wc0 = "
+            f"{points.Wc[0]:.4g}); the filter needs every Wc >= 0 (with beta 2 and kappa 0: "
+            "alpha between 0.52 and 1)"
+        )
+
+
 class BatchUnscentedKalmanFilter(UnscentedKalmanFilter):
     """filterpy's UKF with the per-sigma-point Python loops done in one batched call.
 
@@ -158,6 +177,7 @@ class T2rcUkf(FilterpyState, Estimator):
             points = BatchMerweScaledSigmaPoints(
                 n, self.tuning["alpha"], self.tuning["beta"], self.tuning["kappa"]
             )
+            check_sigma_weights(self.name, points)
             self.kf = BatchUnscentedKalmanFilter(
                 dim_x=n, dim_z=1, dt=0.1, hx=self._hx, fx=self._fx, points=points
             )
