@@ -310,6 +310,39 @@ def test_batched_ukf_follows_filterpy_s_ukf_over_a_long_run() -> None:
     assert ours.P[0, 0] < 0.1**2  # the run did update: the comparison is not of two priors
 
 
+def test_the_ukf_floor_benchmark_computes_what_t2rc_ukf_computes() -> None:
+    """benchmarks/ukf_floor.py times a hand-fused t2rc_ukf (README "Benchmarks"); a floor that
+    drifted from the filter would time something else. On the first 3000 samples of SLA field
+    run 1 (kinetic and saturating tables at two temperatures, a start at full that clips) it
+    follows t2rc_ukf to rounding: 1e-10 of SoC (measured 8e-15 over the whole run; the two
+    differ only in the order of a few sums and the symmetrization of P)."""
+    import importlib.util
+    from dataclasses import fields
+
+    from soc_estimator_ros.bag_io import read_battery_bag
+    from soc_estimator_ros.evaluation import run_estimator
+
+    root = CONFIG_DIR.parent
+    bag = root / "bags" / "sla_field_run_1_full_rest"
+    if not bag.exists():
+        pytest.skip("no field-run bag under bags/")
+    spec = importlib.util.spec_from_file_location("ukf_floor", root / "benchmarks" / "ukf_floor.py")
+    floor = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(floor)
+    full = read_battery_bag(bag)
+    n = 3000
+    cut = {
+        f.name: getattr(full, f.name)[:n]
+        for f in fields(full)
+        if isinstance(getattr(full, f.name), np.ndarray) and len(getattr(full, f.name)) == len(full)
+    }
+    series = replace(full, **cut)
+    ref = run_estimator(make_estimator("t2rc_ukf", SLA, 1.0, 0.1), series).soc
+    soc = floor.fused_run(SLA, make_estimator("t2rc_ukf", SLA, 1.0, 0.1), series)
+    assert np.max(np.abs(soc - ref)) < 1e-10
+    assert np.ptp(ref) > 0.002  # the SoC moves (0.43 % in these 5 min): not a constant compared
+
+
 def light_load_with_a_voltage_error(bias_std_v: float) -> tuple[float, float, float, int]:
     """LFP's plateau (SoC 0.6): 20 minutes at a light 0.4 A load with the voltage 30 mV above
     the model (the LFP file's light-load error after a burst is 36-60 mV), then 25 minutes of

@@ -102,8 +102,9 @@ def test_tables_over_soc_and_temperature() -> None:
 
 
 def test_array_evaluation_follows_the_temperature_it_is_given() -> None:
-    """at_array keeps the row blended at the last temperature; a new temperature (or None,
-    NaN) must give that temperature's values, never a stale row."""
+    """at_array keeps the rows blended at the temperatures it has seen; any temperature (or
+    None, NaN), new or seen before, must give that temperature's values, never a stale row,
+    and the kept rows stay bounded when the temperature never repeats."""
     table = ParamTable.from_arrays(
         [0.0, 0.5, 1.0],
         [[0.02, 0.04, 0.03], [0.01, 0.02, 0.025], [0.005, 0.01, 0.02]],
@@ -114,3 +115,8 @@ def test_array_evaluation_follows_the_temperature_it_is_given() -> None:
         # 1e-15: a blended row interpolated vs two rows interpolated then blended (rounding).
         expected = [table.at(float(s), temp) for s in socs]
         assert table.at_array(socs, temp) == pytest.approx(expected, rel=1e-14, abs=1e-15)
+    for k in range(ParamTable.MAX_BLENDED_ROWS + 10):  # a temperature that never repeats
+        temp = 10.0 + 0.01 * k
+        assert table.at_array(socs[3:4], temp)[0] == pytest.approx(table.at(0.5, temp), rel=1e-14)
+    assert len(table._blended) <= ParamTable.MAX_BLENDED_ROWS
+    assert table.at_array(socs, 31.0) == pytest.approx([table.at(s, 31.0) for s in socs])
