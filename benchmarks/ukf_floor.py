@@ -121,7 +121,7 @@ def fused_run(battery, est, series) -> np.ndarray:
         s = x[:, None] + dpotrf(scale * p, lower=1, clean=1)[0] @ offsets
         soc = s[0]
         v = out_tables.at(soc, temp)
-        h = curve.ocv_array(soc) - i_k * v[0] - s[1] - s[2]
+        h = curve.ocv_array(soc) - i_k * v[0] - s[1:].sum(axis=0)
         if kin is not None and i_k != 0.0:
             h = h - v[1] * np.arcsinh(i_k / v[2])
         if offset is not None:
