@@ -561,13 +561,23 @@ def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
     state_file = tmp_path / "proc.yaml"
     with node_process(ctx, state_file) as (proc, executor, pub, got):
         end = time.monotonic() + 20.0
-        for k in range(5):
+        # Matched on this side is not matched on the node's: a sample sent before the node's
+        # reader has discovered this writer is lost (volatile durability; seen once in CI, 4 of
+        # 5 outputs). So samples go out until the node answers, then five more.
+        k = 0
+        while not got and time.monotonic() < end:
             pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
-        while len(got) < 5 and time.monotonic() < end:
+            k += 1
             executor.spin_once(timeout_sec=0.05)
-        if len(got) < 5:
+        answered = len(got)
+        for j in range(5):
+            pub.publish(state_msg(T0 + (k + j) * S // 10, 12.3, 1.0))
+        last_stamp = state_msg(T0 + (k + 4) * S // 10, 12.3, 1.0).header.stamp
+        while (not got or got[-1].header.stamp != last_stamp) and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        if not got or got[-1].header.stamp != last_stamp:
             proc.kill()
-            pytest.fail(f"{len(got)} outputs; node output:\n{proc.communicate()[0]}")
+            pytest.fail(f"{len(got) - answered} of 5 outputs; node:\n{proc.communicate()[0]}")
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=20)
         assert proc.returncode == 0, out
