@@ -528,7 +528,8 @@ def test_help_exits_zero_without_ros(capsys):
 @contextmanager
 def node_process(ctx, state_file: Path):
     """The console entry point as its own process (coulomb, reliable input, state_file), and
-    an io node linked to it: yields (process, executor, publisher, outputs received)."""
+    an io node linked to it: yields (process, executor, publisher, outputs received, the index
+    of the next sample to send: samples ``T0 + k * S // 10`` for k below it are sent)."""
     ns = f"/p_{uuid.uuid4().hex[:8]}"
     proc = subprocess.Popen(
         [sys.executable, "-m", "soc_estimator_ros.node", "--ros-args",
@@ -547,7 +548,15 @@ def node_process(ctx, state_file: Path):
         while (pub.get_subscription_count() < 1 or io.count_publishers(f"{ns}/battery/soc") < 1) \
                 and time.monotonic() < end:  # fmt: skip
             executor.spin_once(timeout_sec=0.05)
-        yield proc, executor, pub, got
+        # Matched on this side is not matched on the node's: a sample sent before the node's
+        # reader has discovered this writer is lost (volatile durability; seen once in CI, 4 of
+        # 5 outputs). So samples go out until the node answers.
+        k = 0
+        while not got and time.monotonic() < end:
+            pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
+            k += 1
+            executor.spin_once(timeout_sec=0.05)
+        yield proc, executor, pub, got, k
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -559,20 +568,13 @@ def node_process(ctx, state_file: Path):
 def test_node_process_saves_its_state_on_sigint(ctx, tmp_path):
     """The console entry point end to end: spin, estimate, SIGINT -> state saved, exit 0."""
     state_file = tmp_path / "proc.yaml"
-    with node_process(ctx, state_file) as (proc, executor, pub, got):
+    with node_process(ctx, state_file) as (proc, executor, pub, got, k):
         end = time.monotonic() + 20.0
-        # Matched on this side is not matched on the node's: a sample sent before the node's
-        # reader has discovered this writer is lost (volatile durability; seen once in CI, 4 of
-        # 5 outputs). So samples go out until the node answers, then five more.
-        k = 0
-        while not got and time.monotonic() < end:
-            pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
-            k += 1
-            executor.spin_once(timeout_sec=0.05)
         answered = len(got)
-        for j in range(5):
-            pub.publish(state_msg(T0 + (k + j) * S // 10, 12.3, 1.0))
-        last_stamp = state_msg(T0 + (k + 4) * S // 10, 12.3, 1.0).header.stamp
+        msgs = [state_msg(T0 + (k + j) * S // 10, 12.3, 1.0) for j in range(5)]
+        for msg in msgs:
+            pub.publish(msg)
+        last_stamp = msgs[-1].header.stamp
         while (not got or got[-1].header.stamp != last_stamp) and time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
         if not got or got[-1].header.stamp != last_stamp:
@@ -592,13 +594,8 @@ def test_node_process_stops_cleanly_on_sigint_under_streaming_input(ctx, tmp_pat
     its state saved. Three stops, each in the middle of a 1 kHz stream."""
     for attempt in range(3):
         state_file = tmp_path / f"stream{attempt}.yaml"
-        with node_process(ctx, state_file) as (proc, executor, pub, got):
-            end = time.monotonic() + 20.0
-            k = 0
-            while not got and time.monotonic() < end:  # the node is estimating
-                pub.publish(state_msg(T0 + k * S // 10, 12.3, 1.0))
-                k += 1
-                executor.spin_once(timeout_sec=0.01)
+        with node_process(ctx, state_file) as (proc, executor, pub, got, k):
+            assert got  # the node is estimating
             for j in range(400):
                 pub.publish(state_msg(T0 + (k + j) * S // 10, 12.3, 1.0))
                 if j == 100:
