@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import sys
 from collections.abc import Mapping
@@ -91,11 +92,17 @@ def scaled_hybrid_tuning(lam: float, base: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def job(args: tuple[str, str, str, float, float, str]) -> tuple:
-    config, bag, estimator, lam, offset, tuning_mode = args
+@functools.lru_cache(maxsize=4)
+def run_inputs(config: str, bag: str) -> tuple[BatteryParams, BatterySeries, np.ndarray]:
+    """The file, the bag and the model on its truth: the same for every lam, estimator, start."""
     battery = load_battery_params(config)
     series = read_battery_bag(bag)
-    model_v = model_voltage_on_truth(battery, series)
+    return battery, series, model_voltage_on_truth(battery, series)
+
+
+def job(args: tuple[str, str, str, float, float, str]) -> tuple:
+    config, bag, estimator, lam, offset, tuning_mode = args
+    battery, series, model_v = run_inputs(config, bag)
     scaled = scale_model_error(series, model_v, lam)
     rmse_mv = 1000.0 * float(np.sqrt(np.mean((scaled.voltage_v - model_v) ** 2)))
     tuning = None
