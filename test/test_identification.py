@@ -17,6 +17,7 @@ import yaml
 from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.identification.cli import main as identify_main
+from soc_estimator_ros.identification.fit import fit_pulse
 from soc_estimator_ros.identification.identify import (
     identify,
     offset_corrected,
@@ -32,11 +33,17 @@ SLA = load_battery_params(ROOT / "config" / "sla_12v5ah.yaml")
 TRUE = {"r0": 0.030, "r1": 0.012, "tau1": 25.0, "r2": 0.020, "tau2": 700.0}
 
 
-def synthetic_pulse_test(seed: int = 0, noise: bool = True) -> BatterySeries:
-    """Seed 000 protocol at 10 Hz: 10 min rest, six 30-min 1 A pulses with 1-h rests."""
-    rng = np.random.default_rng(seed)
-    ocv = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.85])
-    th = TheveninParams(
+SYNTHETIC_OCV = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.85])
+# An OCV with LFP's bend leaving full: 450 mV over the first 1 % of SoC, 15 mV from a straight
+# line over the first pulse's 3-min onset (the LFP bag's: 14.5 mV).
+KNEE_OCV = OcvCurve(
+    [0.0, 0.2, 0.5, 0.8, 0.96, 0.98, 1.0], [11.6, 11.9, 12.2, 12.5, 12.58, 12.7, 13.4]
+)
+
+
+def synthetic_thevenin() -> TheveninParams:
+    """The known 2-RC parameters ``TRUE``, constant over SoC."""
+    return TheveninParams(
         ParamTable.constant(TRUE["r0"]),
         (
             RcBranch(
@@ -47,7 +54,14 @@ def synthetic_pulse_test(seed: int = 0, noise: bool = True) -> BatterySeries:
             ),
         ),
     )
-    model = TheveninModel(ocv, th, capacity_ah=5.0)
+
+
+def synthetic_pulse_test(
+    seed: int = 0, noise: bool = True, ocv: OcvCurve = SYNTHETIC_OCV
+) -> BatterySeries:
+    """Seed 000 protocol at 10 Hz: 10 min rest, six 30-min 1 A pulses with 1-h rests."""
+    rng = np.random.default_rng(seed)
+    model = TheveninModel(ocv, synthetic_thevenin(), capacity_ah=5.0)
     segments = [(600.0, 0.0)] + [(1800.0, 1.0), (3600.0, 0.0)] * 6
     current = np.concatenate([np.full(int(d * 10), i) for d, i in segments])
     t = np.arange(current.size) * 0.1
@@ -69,6 +83,29 @@ def synthetic_pulse_test(seed: int = 0, noise: bool = True) -> BatterySeries:
         current_a=i_meas,
         voltage_v=v,
         temperature_c=np.full(t.size, 25.0),
+    )
+
+
+def synthetic_slow_discharge(ocv: OcvCurve) -> BatterySeries:
+    """C/20 at 1 Hz from full to 10 % with the same model: the OCV's shape between the rests
+    (as the LFP bag's slow discharge gives the knee's)."""
+    model = TheveninModel(ocv, synthetic_thevenin(), capacity_ah=5.0)
+    n = int(0.9 * 20 * 3600)
+    t = np.arange(n, dtype=float)
+    current = np.full(n, 0.25)
+    current[:600] = 0.0  # a 10-min rest first
+    v = np.empty(n)
+    x = model.rested_state(1.0)
+    for k in range(n):
+        if k:
+            x = model.step(x, current[k - 1], 1.0)
+        v[k] = model.terminal_voltage(x, current[k])
+    return BatterySeries(
+        t_s=t,
+        stamp_ns=(t * 1e9).astype(np.int64),
+        current_a=current,
+        voltage_v=v,
+        temperature_c=np.full(n, 25.0),
     )
 
 
@@ -107,12 +144,37 @@ def test_recovers_known_parameters_with_sensor_noise(seed: int) -> None:
         assert mean == pytest.approx(TRUE[key], rel=BOUND[key]), key
 
 
+def test_a_pulse_whose_onset_crosses_a_bend_of_the_ocv_is_fitted_on_its_end() -> None:
+    """LFP leaving full: the OCV along the first pulse's onset is no straight line, and a fit
+    that takes it for one puts the bend into R0 and the fast branch. Noise-free, so that the
+    only error is the window's."""
+    series = synthetic_pulse_test(noise=False, ocv=KNEE_OCV)
+    res = identify(series, SLA, capacity_ah=5.0, slow=synthetic_slow_discharge(KNEE_OCV))
+    bent = [n for n in res.notes if "bends" in n]
+    assert len(bent) == 1 and "at SoC 1.00" in bent[0], res.notes  # the first pulse only
+    first = min(res.pulses, key=lambda f: abs(f.soc - 0.9))
+    # Labelled where its window and the relaxation after it are: the pulse's last 3 min end
+    # at SoC 0.90 (1 A over 30 min of 5 Ah) and start 1 % above.
+    assert first.soc == pytest.approx(0.905, abs=0.002)
+    for key in ("r0", "r1", "r2", "tau2"):
+        # The issue's bounds (the onset-window fits of the other pulses meet 0.5 %, above).
+        assert getattr(first, FIELDS[key]) == pytest.approx(TRUE[key], rel=BOUND[key]), key
+    # Why: the same pulse fitted on its onset takes the bend for resistance (measured: R0
+    # +12 %, R1 +65 %; asserted: each beyond the issue's 2 % by half of that).
+    pulse = segment_pulses(series)[0]
+    soc_at = 1.0 - np.concatenate(
+        [[0.0], np.cumsum(series.current_a[:-1] * np.diff(series.t_s))]
+    ) / (3600.0 * 5.0)
+    onset = fit_pulse(series, pulse, soc_at)
+    assert onset.r0_ohm > 1.06 * TRUE["r0"] and onset.r1_ohm > 1.3 * TRUE["r1"], onset
+
+
 def test_ocv_points_from_rests_and_rc_model() -> None:
     res = synthetic_result()
     curve = res.battery.ocv_curve()
     # The rest before each pulse is 1 h after the previous one: relaxed to within ~1 mV.
     for soc in (0.9, 0.7, 0.5):
-        truth = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.85]).ocv(soc)
+        truth = SYNTHETIC_OCV.ocv(soc)
         assert curve.ocv(soc) == pytest.approx(truth, abs=0.01)
     rc = res.battery.rc_model
     assert rc.r_b_ohm == pytest.approx(rc.r_s_ohm)  # eq. 7

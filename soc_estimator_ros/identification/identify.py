@@ -15,12 +15,15 @@ from ..models.tables import ParamTable
 from ..models.thevenin import RcBranch, TheveninModel, TheveninParams
 from ..params import BatteryParams, OcvTable
 from .fit import (
+    ONSET_BEND_V,
     PulseFit,
     RcFit,
     charge_removed_ah,
     fit_pulse,
     fit_rc_pulse,
     monotone_ocv_table,
+    ocv_bend_v,
+    onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
 from .segment import IdentificationError, segment_pulses, start_after_last_charge
@@ -212,11 +215,20 @@ def identify(
         )
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
+    ocv_curve = OcvCurve(ocv_soc, ocv_v)
     for n, p in enumerate(pulses, 1):
         if progress:
             progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
+        bend_v = ocv_bend_v(ocv_curve, onset_soc(test, p, soc_at))
+        anchor_end = bend_v > ONSET_BEND_V
+        if anchor_end:
+            notes.append(
+                f"pulse at SoC {soc_at[p.start]:.2f}: the OCV bends {1000 * bend_v:.1f} mV "
+                f"(> {1000 * ONSET_BEND_V:g}) over its onset: fitted on its end and the rest "
+                f"after it, at SoC {soc_at[p.end]:.2f}"
+            )
         try:
-            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s)
+            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s, anchor_end=anchor_end)
             rc_fit = fit_rc_pulse(test, p)
         except (IdentificationError, RuntimeError, ValueError) as exc:
             notes.append(f"pulse at t = {test.t_s[p.start]:.0f} s skipped: {exc}")
@@ -234,9 +246,7 @@ def identify(
     thevenin = thevenin_tables(by_soc)
     kinetic: list[KineticFit] = []
     if rate_test is not None:
-        kinetic = rate_test_fits(
-            rate_test, float(capacity), notes, thevenin, OcvCurve(ocv_soc, ocv_v)
-        )
+        kinetic = rate_test_fits(rate_test, float(capacity), notes, thevenin, ocv_curve)
         thevenin = with_kinetics(thevenin, [kinetic])
     span_v = float(ocv_v[-1] - ocv_v[0])
     span_soc = float(ocv_soc[-1] - ocv_soc[0])
