@@ -186,6 +186,7 @@ def identify(
     slow: BatterySeries | None = None,
     progress: Callable[[str], None] | None = None,
     rate_test: BatterySeries | None = None,
+    shape_ocv: OcvCurve | None = None,
 ) -> IdentificationResult:
     """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test.
 
@@ -219,7 +220,7 @@ def identify(
     for n, p in enumerate(pulses, 1):
         if progress:
             progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
-        bend_v = ocv_bend_v(ocv_curve, onset_soc(test, p, soc_at))
+        bend_v = ocv_bend_v(shape_ocv or ocv_curve, onset_soc(test, p, soc_at))
         anchor_end = bend_v > ONSET_BEND_V
         if anchor_end:
             notes.append(
