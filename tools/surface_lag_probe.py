@@ -19,10 +19,12 @@ Measured (2026-11-23, README "Accuracy"; PARAMS from this branch's soc_identify)
     (the issue's 15 mV), above SoC 0.9: 131.8 -> 42.4 mV.
   * field runs at 25 degC with that lag (MAE %, correct start / -30 %): hybrid run 1 0.70 / 0.70
     (converged in 25 s), run 2 0.46 / 1.91 (468 s); t2rc_ukf run 1 0.78, run 2 1.17.
-  * 5 degC: the same fit on the 5 degC pulse test wants g 0.04 /A, tau 50-100 s (37.6 mV), and
-    under the cold run's 10-30 A that lag puts the surface 0.2-0.3 SoC below the mean: hybrid
-    4.71 %, t2rc_ukf 1.05 % (max 7.4 %). With the 25 degC tables and lag instead: 1.46 / 2.20 %.
-    A linear lag fitted at 0.2 C does not extrapolate to 5 C in the cold.
+  * 5 degC, after main's OCV-shift fix (106a8ca): the same fit on the 5 degC pulse test gives
+    the same g (0.005 /A, tau 50-100 s: 11.9-15.9 mV; the simulator's diffusivities do not
+    depend on temperature). Estimators on the cold run (anchor, 2 temperatures, no rate test):
+    t2rc_ukf 0.28 %, hybrid 2.17 % (its first light-load update at SoC 0.967 with the initial
+    std 0.1 moves it 5 points down onto the plateau). Before that fix the 5 degC OCV shift was
+    0.4-0.6 V high across the knee, which a lag of g 0.04 /A had been absorbing.
 """
 
 from __future__ import annotations
