@@ -7,6 +7,7 @@ model: that is fine here, it tests the identifier's recovery, not an estimator's
 from __future__ import annotations
 
 import shlex
+from dataclasses import replace
 from functools import cache
 from pathlib import Path
 
@@ -25,7 +26,14 @@ from soc_estimator_ros.identification.identify import (
     voltage_rmse,
 )
 from soc_estimator_ros.identification.segment import IdentificationError, segment_pulses
-from soc_estimator_ros.models import OcvCurve, ParamTable, RcBranch, TheveninModel, TheveninParams
+from soc_estimator_ros.models import (
+    OcvCurve,
+    ParamTable,
+    RcBranch,
+    SurfaceLag,
+    TheveninModel,
+    TheveninParams,
+)
 from soc_estimator_ros.params import load_battery_params
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,20 +65,25 @@ def synthetic_thevenin() -> TheveninParams:
 
 
 def synthetic_pulse_test(
-    seed: int = 0, noise: bool = True, ocv: OcvCurve = SYNTHETIC_OCV
+    seed: int = 0,
+    noise: bool = True,
+    ocv: OcvCurve = SYNTHETIC_OCV,
+    lag: SurfaceLag | None = None,
 ) -> BatterySeries:
     """Seed 000 protocol at 10 Hz: 10 min rest, six 30-min 1 A pulses with 1-h rests."""
     rng = np.random.default_rng(seed)
-    model = TheveninModel(ocv, synthetic_thevenin(), capacity_ah=5.0)
+    model = TheveninModel(ocv, replace(synthetic_thevenin(), surface_lag=lag), capacity_ah=5.0)
     segments = [(600.0, 0.0)] + [(1800.0, 1.0), (3600.0, 0.0)] * 6
     current = np.concatenate([np.full(int(d * 10), i) for d, i in segments])
     t = np.arange(current.size) * 0.1
     v = np.empty(current.size)
     x = model.rested_state(1.0)
+    z = 0.0
     for k in range(current.size):
         if k:
             x = model.step(x, current[k - 1], 0.1)
-        v[k] = model.terminal_voltage(x, current[k])
+            z = model.surface_step(z, current[k - 1], 0.1)
+        v[k] = model.terminal_voltage(x, current[k], None, z)
     i_meas = current
     if noise:
         # Sensor noise like the bags' (no gain error: a gain error biases every resistance
@@ -86,20 +99,22 @@ def synthetic_pulse_test(
     )
 
 
-def synthetic_slow_discharge(ocv: OcvCurve) -> BatterySeries:
+def synthetic_slow_discharge(ocv: OcvCurve, lag: SurfaceLag | None = None) -> BatterySeries:
     """C/20 at 1 Hz from full to 10 % with the same model: the OCV's shape between the rests
     (as the LFP bag's slow discharge gives the knee's)."""
-    model = TheveninModel(ocv, synthetic_thevenin(), capacity_ah=5.0)
+    model = TheveninModel(ocv, replace(synthetic_thevenin(), surface_lag=lag), capacity_ah=5.0)
     n = int(0.9 * 20 * 3600)
     t = np.arange(n, dtype=float)
     current = np.full(n, 0.25)
     current[:600] = 0.0  # a 10-min rest first
     v = np.empty(n)
     x = model.rested_state(1.0)
+    z = 0.0
     for k in range(n):
         if k:
             x = model.step(x, current[k - 1], 1.0)
-        v[k] = model.terminal_voltage(x, current[k])
+            z = model.surface_step(z, current[k - 1], 1.0)
+        v[k] = model.terminal_voltage(x, current[k], None, z)
     return BatterySeries(
         t_s=t,
         stamp_ns=(t * 1e9).astype(np.int64),
@@ -167,6 +182,31 @@ def test_a_pulse_whose_onset_crosses_a_bend_of_the_ocv_is_fitted_on_its_end() ->
     ) / (3600.0 * 5.0)
     onset = fit_pulse(series, pulse, soc_at)
     assert onset.r0_ohm > 1.06 * TRUE["r0"] and onset.r1_ohm > 1.3 * TRUE["r1"], onset
+    # Without a lag in the data the fitted one is small: measured 4.1e-4 SoC per ampere (what
+    # the window's other fits leave at the bend), asserted below a quarter of the LFP bag's
+    # fitted 3.8e-3.
+    lag = res.battery.thevenin.surface_lag
+    assert lag is not None and lag.gain_soc_per_a < 1e-3, lag
+
+
+def test_the_surface_lag_is_found_on_the_pulse_that_crosses_the_bend() -> None:
+    """The same test with a known surface lag (g 0.004 SoC/A, tau 60 s: the LFP bag's order)
+    in the data, the slow discharge's too: the fit finds it back, and the model with it
+    follows the whole test."""
+    true = SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    series = synthetic_pulse_test(noise=False, ocv=KNEE_OCV, lag=true)
+    res = identify(series, SLA, capacity_ah=5.0, slow=synthetic_slow_discharge(KNEE_OCV, true))
+    lag = res.battery.thevenin.surface_lag
+    assert any(n.startswith("surface lag: ") for n in res.notes), res.notes
+    # Tolerances: what the window's other parameters (fitted first, each within the issue's
+    # 2 % / 5 %) and the slow discharge's own lag in the OCV table leave. Measured: g -5 %,
+    # tau -23 % (tau -12 %, g +6 % with a slow discharge free of the lag): tau trades against the
+    # fast branch's 25 s over the same minutes.
+    assert lag.gain_soc_per_a == pytest.approx(true.gain_soc_per_a, rel=0.10), lag
+    assert lag.tau_s == pytest.approx(true.tau_s, rel=0.30), lag
+    without = replace(res.battery, thevenin=replace(res.battery.thevenin, surface_lag=None))
+    with_lag_v, without_v = (voltage_rmse(b, series, 1.0) for b in (res.battery, without))
+    assert with_lag_v < 0.5 * without_v, (with_lag_v, without_v)
 
 
 def test_ocv_points_from_rests_and_rc_model() -> None:

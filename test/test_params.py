@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from soc_estimator_ros.models import SurfaceLag
 from soc_estimator_ros.params import (
     ParamFileError,
     battery_params_to_dict,
@@ -141,6 +142,26 @@ def test_ocv_temperature_shift_is_validated_and_round_trips(tmp_path) -> None:
     assert table.at(0.5, 12.5) == pytest.approx(-0.01)  # linear in temperature
     again = parse_battery_params(battery_params_to_dict(params))
     assert again.ocv == params.ocv
+
+
+def test_surface_lag_is_validated_and_round_trips(tmp_path) -> None:
+    tree = base()
+    path = tmp_path / "t.yaml"
+    for bad, named in (
+        ({"gain_soc_per_a": -0.001, "tau_s": 60.0}, "gain_soc_per_a"),
+        ({"gain_soc_per_a": 0.004, "tau_s": 0.0}, "tau_s"),
+        ({"gain_soc_per_a": 0.004}, "tau_s"),
+    ):
+        tree["thevenin"]["surface_lag"] = bad
+        path.write_text(yaml.safe_dump(tree))
+        with pytest.raises(ParamFileError, match=rf"thevenin.surface_lag.{named}"):
+            load_battery_params(path)
+    tree["thevenin"]["surface_lag"] = {"gain_soc_per_a": 0.004, "tau_s": 60.0}
+    path.write_text(yaml.safe_dump(tree))
+    params = load_battery_params(path)
+    assert params.thevenin.surface_lag == SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    again = parse_battery_params(battery_params_to_dict(params))
+    assert again.thevenin.surface_lag == params.thevenin.surface_lag
 
 
 def test_unreadable_and_malformed_yaml(tmp_path) -> None:

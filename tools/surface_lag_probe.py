@@ -119,8 +119,12 @@ def main(argv: list[str]) -> None:
                     print(open_loop(Path(argv[1]), Path(bag), g, tau), flush=True)
     elif argv[0] == "estimate":
         for off in floats(argv[6]):
-            print(estimate(Path(argv[1]), Path(argv[2]), float(argv[3]), float(argv[4]),
-                           argv[5], off), flush=True)
+            print(
+                estimate(
+                    Path(argv[1]), Path(argv[2]), float(argv[3]), float(argv[4]), argv[5], off
+                ),
+                flush=True,
+            )
     else:
         raise SystemExit(__doc__)
 

@@ -52,6 +52,7 @@ class Ekf(FilterpyState, Estimator):
             self.kf.R = np.array([[self.tuning["r"]]])
         self.kf.x = self.model.rested_state(soc)
         self.kf.P = np.diag([soc_var, self.tuning["p0_v"]])
+        self.z_soc = 0.0  # the surface lag, beside the state (t2rc_ukf.py)
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         m = self.model
@@ -68,12 +69,13 @@ class Ekf(FilterpyState, Estimator):
         )
         self.kf.Q = np.diag(np.asarray(self.tuning["q_diag"], dtype=float) * dt_s)
         self.kf.predict(u=np.array([current_a]))
+        self.z_soc = m.surface_step(self.z_soc, current_a, dt_s)
 
     def _jacobian(self, x: np.ndarray, current_a: float, temp_c) -> np.ndarray:
-        return self.model.output_jacobian(x, current_a, temp_c)
+        return self.model.output_jacobian(x, current_a, temp_c, self.z_soc)
 
     def _hx(self, x: np.ndarray, current_a: float, temp_c) -> np.ndarray:
-        return np.array([self.model.terminal_voltage(x, current_a, temp_c)])
+        return np.array([self.model.terminal_voltage(x, current_a, temp_c, self.z_soc)])
 
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self.kf.update(

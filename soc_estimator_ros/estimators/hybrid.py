@@ -98,7 +98,7 @@ class Hybrid(T2rcUkf):
         return out
 
     def _hx(self, xs: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
-        v = self.model.terminal_voltage_batch(xs[:, :-1], current_a, temp_c)
+        v = self.model.terminal_voltage_batch(xs[:, :-1], current_a, temp_c, self.z_soc)
         if not self.at_rest:
             v = v + xs[:, -1]
         return v[:, np.newaxis]

@@ -103,7 +103,12 @@ def identify_tests(
         else:
             # The reference's capacity: a cold HPPC stops at the cut-off long before empty.
             res = identify(
-                test, template, first.capacity_ah, None, progress, rates[n],
+                test,
+                template,
+                first.capacity_ah,
+                None,
+                progress,
+                rates[n],
                 shape_ocv=first.battery.ocv_curve(),
             )
             res.notes.append(f"capacity of the {temps[ref]:.1f} degC test used")
