@@ -23,7 +23,7 @@ import yaml
 from .models.ocv import OcvCurve
 from .models.rc_saft import RcModelParams
 from .models.tables import ParamTable
-from .models.thevenin import KineticParams, RcBranch, TheveninParams
+from .models.thevenin import KineticParams, RcBranch, SurfaceLag, TheveninModel, TheveninParams
 
 SCHEMA_VERSION = 1
 CHEMISTRIES = ("sla", "lfp", "li_ion")
@@ -105,6 +105,17 @@ class BatteryParams:
     def ocv_curve(self) -> OcvCurve:
         """The battery's OCV curve."""
         return self.ocv.curve()
+
+    def thevenin_model(self, thevenin: TheveninParams | None = None) -> TheveninModel:
+        """The pack's Thevenin model: its OCV (with the temperature shift), ``thevenin`` (the
+        file's tables by default), capacity and charge efficiency."""
+        return TheveninModel(
+            self.ocv_curve(),
+            self.thevenin if thevenin is None else thevenin,
+            self.capacity_ah,
+            self.coulomb_efficiency_charge,
+            self.ocv.offset_table(),
+        )
 
 
 class _Checker:
@@ -341,6 +352,24 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
             )
         )
 
+    surface_lag = None
+    if th.get("surface_lag") is not None:
+        sm = chk.mapping(th["surface_lag"], "thevenin.surface_lag")
+        surface_lag = SurfaceLag(
+            gain_soc_per_a=chk.number(
+                chk.get(sm, "gain_soc_per_a", "thevenin.surface_lag"),
+                "thevenin.surface_lag.gain_soc_per_a",
+                0.0,
+                1.0,
+            ),
+            tau_s=chk.number(
+                chk.get(sm, "tau_s", "thevenin.surface_lag"),
+                "thevenin.surface_lag.tau_s",
+                0.1,
+                1.0e5,
+            ),
+        )
+
     filters = _parse_filters(chk, root.get("filters", {}))
     return BatteryParams(
         name=name,
@@ -352,7 +381,9 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         limits=limits,
         ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v, temperature_c=ocv_temps, offset_v=ocv_offsets),
         rc_model=rc_params,
-        thevenin=TheveninParams(r0_ohm=r0, branches=tuple(branches), kinetic=kinetic),
+        thevenin=TheveninParams(
+            r0_ohm=r0, branches=tuple(branches), kinetic=kinetic, surface_lag=surface_lag
+        ),
         filters=filters,
         source=source_text,
     )
@@ -410,6 +441,11 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     }
     if th.kinetic is not None:
         out["thevenin"]["kinetic"] = {"a_v": table(th.kinetic.a_v), "i0_a": table(th.kinetic.i0_a)}
+    if th.surface_lag is not None:
+        out["thevenin"]["surface_lag"] = {
+            "gain_soc_per_a": th.surface_lag.gain_soc_per_a,
+            "tau_s": th.surface_lag.tau_s,
+        }
     if params.ocv.temperature_c:
         out["ocv"]["temperature_c"] = list(params.ocv.temperature_c)
         out["ocv"]["offset_v"] = [list(r) for r in params.ocv.offset_v]

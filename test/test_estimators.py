@@ -25,6 +25,7 @@ from soc_estimator_ros.models import (
     ParamTable,
     RcBranch,
     SaftRcModel,
+    SurfaceLag,
     TheveninModel,
     TheveninParams,
 )
@@ -355,8 +356,10 @@ def test_the_model_error_budget_scales_the_models_own_error() -> None:
     series = read_battery_bag(bag).window(0, 3000)
     model_v = budget.model_voltage_on_truth(LFP, series)
     bag_error_v = series.voltage_v - model_v
-    # Something to scale: the file's model misses these 5 minutes by 38 mV RMS (measured).
-    assert np.sqrt(np.mean(bag_error_v**2)) > 0.02
+    # Something to scale, well above the 2 mV noise the lam = 0 check below separates from it:
+    # the file's model misses these 5 minutes by 18.7 mV RMS (measured; 38 mV with the 25 degC
+    # file before the surface lag and the rate tests).
+    assert np.sqrt(np.mean(bag_error_v**2)) > 5 * budget.ADC_NOISE_V
     whole = budget.scale_model_error(series, model_v, 1.0)
     assert np.max(np.abs(whole.voltage_v - series.voltage_v)) < 1e-12
     assert whole.current_a is series.current_a and whole.soc_ref is series.soc_ref
@@ -410,3 +413,21 @@ def test_sigma_points_with_a_negative_covariance_weight_are_refused(name: str) -
     with pytest.raises(ValueError, match="negative covariance weight"):
         make_estimator(name, LFP, 0.6, 0.1, {"alpha": 0.5})  # Wc0 = -0.25
     make_estimator(name, LFP, 0.6, 0.1, {"alpha": 0.6})  # Wc0 = +0.86
+
+
+@pytest.mark.parametrize("name", ["t2rc_ukf", "hybrid", "ekf", "dcc_ekf"])
+def test_the_thevenin_filters_carry_the_surface_lag(name: str) -> None:
+    """The surface lag is driven by the current alone, beside the filter's state: after a
+    minute of 2 A it is the lag's own recursion, and a reset (a pack at rest) clears it."""
+    lag = SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    battery = replace(LFP, thevenin=replace(LFP.thevenin, surface_lag=lag))
+    est = make_estimator(name, battery, 0.6, 0.01)
+    expected = 0.0
+    for k in range(601):
+        est.step(0.1 * k, 2.0, 12.9)
+        if k:
+            expected = lag.step(expected, 2.0, 0.1)
+    assert est.z_soc == pytest.approx(expected, rel=1e-12)
+    assert expected == pytest.approx(0.008 * (1.0 - math.exp(-1.0)), rel=1e-9)
+    est.reset_soc(0.6, 0.01)
+    assert est.z_soc == 0.0

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from soc_estimator_ros.models import SurfaceLag
 from soc_estimator_ros.params import (
     ParamFileError,
     battery_params_to_dict,
@@ -22,8 +23,19 @@ BUNDLED = sorted(p for p in CONFIG.glob("*.yaml") if "schema_version" in p.read_
 
 
 def base() -> dict:
-    """A valid file with one temperature (the LFP file; the SLA file has a temperature axis)."""
-    return yaml.safe_load((CONFIG / "lfp_12v6ah.yaml").read_text())
+    """A valid file with one temperature: the LFP file's 25 degC tables (every bundled file has
+    a temperature axis), as a robot owner's first file identified at one temperature is."""
+    tree = yaml.safe_load((CONFIG / "lfp_12v6ah.yaml").read_text())
+    for table in (tree["ocv"], tree["thevenin"]):
+        temps = table.pop("temperature_c", [25.0])
+        row = temps.index(25.0)
+        table.pop("offset_v", None)
+        tables = [table, table.get("kinetic", {}), *table.get("branches", [])]
+        for node in tables:
+            for key, value in node.items():
+                if isinstance(value, list) and value and isinstance(value[0], list):
+                    node[key] = value[row]
+    return tree
 
 
 @pytest.mark.parametrize("path", BUNDLED, ids=lambda p: p.name)
@@ -110,10 +122,11 @@ def test_temperature_tables_must_have_one_row_per_temperature(tmp_path) -> None:
         load_battery_params(path)
     # Two rows everywhere makes it valid, and the temperature axis is used.
     th = tree["thevenin"]
-    th["r0_ohm"] = [[2 * v for v in th["r0_ohm"]], th["r0_ohm"]]
-    for b in th["branches"]:
-        b["r_ohm"] = [b["r_ohm"], b["r_ohm"]]
-        b["c_f"] = [b["c_f"], b["c_f"]]
+    for node in [th, th.get("kinetic", {}), *th["branches"]]:
+        for key, value in node.items():
+            if key not in ("soc", "temperature_c", "branches") and isinstance(value, list):
+                node[key] = [value, value]
+    th["r0_ohm"][0] = [2 * v for v in th["r0_ohm"][1]]
     path.write_text(yaml.safe_dump(tree))
     params = load_battery_params(path)
     assert params.thevenin.r0_ohm.at(0.5, 0.0) == pytest.approx(2 * params.thevenin.r0_ohm.at(0.5))
@@ -141,6 +154,26 @@ def test_ocv_temperature_shift_is_validated_and_round_trips(tmp_path) -> None:
     assert table.at(0.5, 12.5) == pytest.approx(-0.01)  # linear in temperature
     again = parse_battery_params(battery_params_to_dict(params))
     assert again.ocv == params.ocv
+
+
+def test_surface_lag_is_validated_and_round_trips(tmp_path) -> None:
+    tree = base()
+    path = tmp_path / "t.yaml"
+    for bad, named in (
+        ({"gain_soc_per_a": -0.001, "tau_s": 60.0}, "gain_soc_per_a"),
+        ({"gain_soc_per_a": 0.004, "tau_s": 0.0}, "tau_s"),
+        ({"gain_soc_per_a": 0.004}, "tau_s"),
+    ):
+        tree["thevenin"]["surface_lag"] = bad
+        path.write_text(yaml.safe_dump(tree))
+        with pytest.raises(ParamFileError, match=rf"thevenin.surface_lag.{named}"):
+            load_battery_params(path)
+    tree["thevenin"]["surface_lag"] = {"gain_soc_per_a": 0.004, "tau_s": 60.0}
+    path.write_text(yaml.safe_dump(tree))
+    params = load_battery_params(path)
+    assert params.thevenin.surface_lag == SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    again = parse_battery_params(battery_params_to_dict(params))
+    assert again.thevenin.surface_lag == params.thevenin.surface_lag
 
 
 def test_unreadable_and_malformed_yaml(tmp_path) -> None:

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from soc_estimator_ros.models import OcvCurve, ParamTable, RcBranch, TheveninModel, TheveninParams
+from soc_estimator_ros.models import (
+    OcvCurve,
+    ParamTable,
+    RcBranch,
+    SurfaceLag,
+    TheveninModel,
+    TheveninParams,
+)
 from soc_estimator_ros.models.coulomb import coulomb_step
 
 OCV = OcvCurve([0.0, 0.2, 0.5, 0.8, 1.0], [11.6, 11.9, 12.2, 12.5, 12.8])
@@ -120,3 +127,31 @@ def test_array_evaluation_follows_the_temperature_it_is_given() -> None:
         assert table.at_array(socs[3:4], temp)[0] == pytest.approx(table.at(0.5, temp), rel=1e-14)
     assert len(table._blended) <= ParamTable.MAX_BLENDED_ROWS
     assert table.at_array(socs, 31.0) == pytest.approx([table.at(s, 31.0) for s in socs])
+
+
+def test_the_surface_lag_is_a_first_order_lag_of_the_current_and_moves_the_ocv_only() -> None:
+    """z follows g I with time constant tau, exactly for any split of a held current, and the
+    voltage reads the OCV at SoC - z while the drop stays at the SoC."""
+    rng = np.random.default_rng(5)
+    plain = make_model(2, rng)
+    lag = SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    model = TheveninModel(
+        OCV, TheveninParams(plain.params.r0_ohm, plain.params.branches, surface_lag=lag), 5.0
+    )
+    assert plain.surface_step(0.3, 2.0, 10.0) == 0.0  # the papers' model: no lag
+    one = model.surface_step(0.0, 2.0, 300.0)
+    assert one == pytest.approx(0.008 * (1.0 - np.exp(-5.0)), rel=1e-12)
+    z = 0.0
+    for _ in range(3000):
+        z = model.surface_step(z, 2.0, 0.1)
+    assert z == pytest.approx(one, rel=1e-9)  # the recursion's round-off over 3000 steps
+    x = np.array([0.6, 0.01, 0.02])
+    expected = OCV.ocv(0.6 - z) - model.series_drop_v(0.6, 3.0) - 0.03
+    assert model.terminal_voltage(x, 3.0, None, z) == pytest.approx(expected, abs=1e-12)
+    assert model.terminal_voltage(x, 3.0) == pytest.approx(plain.terminal_voltage(x, 3.0))
+    xs = np.array([x, [0.3, 0.0, 0.01]])
+    batch = model.terminal_voltage_batch(xs, 3.0, None, z)
+    # ocv_array interpolates the cubic sampled every 1/4000 of the table: within 1 uV.
+    assert batch[0] == pytest.approx(model.terminal_voltage(x, 3.0, None, z), abs=1e-6)
+    h = model.output_jacobian(x, 3.0, None, z)
+    assert h[0, 0] == pytest.approx(OCV.slope(0.6 - z) - 0.0, abs=1e-9)

@@ -21,7 +21,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from ..conventions import SECONDS_PER_HOUR
 from ..models.coulomb import coulomb_efficiency
-from ..models.thevenin import TheveninModel, one_rc_equivalent
+from ..models.thevenin import one_rc_equivalent
 from .base import Estimator
 from .filterpy_state import FilterpyState
 
@@ -40,18 +40,12 @@ class Ekf(FilterpyState, Estimator):
 
     def _init_state(self, soc: float, soc_var: float) -> None:
         if not hasattr(self, "kf"):
-            b = self.battery
-            self.model = TheveninModel(
-                b.ocv_curve(),
-                one_rc_equivalent(b.thevenin),
-                b.capacity_ah,
-                b.coulomb_efficiency_charge,
-                b.ocv.offset_table(),
-            )
+            self.model = self.battery.thevenin_model(one_rc_equivalent(self.battery.thevenin))
             self.kf = ExtendedKalmanFilter(dim_x=2, dim_z=1, dim_u=1)
             self.kf.R = np.array([[self.tuning["r"]]])
         self.kf.x = self.model.rested_state(soc)
         self.kf.P = np.diag([soc_var, self.tuning["p0_v"]])
+        self.z_soc = 0.0  # the surface lag, beside the state (t2rc_ukf.py)
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         m = self.model
@@ -68,12 +62,13 @@ class Ekf(FilterpyState, Estimator):
         )
         self.kf.Q = np.diag(np.asarray(self.tuning["q_diag"], dtype=float) * dt_s)
         self.kf.predict(u=np.array([current_a]))
+        self.z_soc = m.surface_step(self.z_soc, current_a, dt_s)
 
     def _jacobian(self, x: np.ndarray, current_a: float, temp_c) -> np.ndarray:
-        return self.model.output_jacobian(x, current_a, temp_c)
+        return self.model.output_jacobian(x, current_a, temp_c, self.z_soc)
 
     def _hx(self, x: np.ndarray, current_a: float, temp_c) -> np.ndarray:
-        return np.array([self.model.terminal_voltage(x, current_a, temp_c)])
+        return np.array([self.model.terminal_voltage(x, current_a, temp_c, self.z_soc)])
 
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self.kf.update(

@@ -12,8 +12,11 @@ papers report:
    of capacity) the sample only propagates the state (coulomb counting plus the RC dynamics);
    the voltage updates the SoC at light load and at rest, as DCC-EKF (seed 001) does. A file
    identified with a rate test (Butler-Volmer drop, saturating fastest branch) covers the rate
-   test's currents: ``config/sla_12v5ah.yaml`` sets ``filters.hybrid.update_c_rate_max`` to its
-   top rate, 6 C (its model follows the field runs within 21-26 mV; README "Accuracy").
+   test's currents: both bundled files set ``filters.hybrid.update_c_rate_max`` to its top
+   rate, 6 C (the SLA model follows the field runs within 21-26 mV, the LFP one with its
+   surface lag within 40-60 mV, with ``r_per_a`` 0.1 V/A; README "Accuracy": on LFP's cold
+   run, a start at full under 9 A, the updates under load hold the SoC in the knee, where the
+   voltage tells it, before a light-load update with a wide prior can move it onto the plateau).
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
    (seed 000 Fig. 11b: the Thevenin model's voltage error is larger than the RC model's under
    load). ``R = r + (r_per_a I)^2``, so heavy load pulls the SoC less than a rest does.
@@ -98,7 +101,7 @@ class Hybrid(T2rcUkf):
         return out
 
     def _hx(self, xs: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
-        v = self.model.terminal_voltage_batch(xs[:, :-1], current_a, temp_c)
+        v = self.model.terminal_voltage_batch(xs[:, :-1], current_a, temp_c, self.z_soc)
         if not self.at_rest:
             v = v + xs[:, -1]
         return v[:, np.newaxis]

@@ -161,14 +161,7 @@ class T2rcUkf(FilterpyState, Estimator):
     }
 
     def _make_model(self) -> TheveninModel:
-        b = self.battery
-        return TheveninModel(
-            b.ocv_curve(),
-            b.thevenin,
-            b.capacity_ah,
-            b.coulomb_efficiency_charge,
-            b.ocv.offset_table(),
-        )
+        return self.battery.thevenin_model()
 
     def _init_state(self, soc: float, soc_var: float) -> None:
         if not hasattr(self, "kf"):
@@ -184,6 +177,9 @@ class T2rcUkf(FilterpyState, Estimator):
             self.kf.R = np.array([[self.tuning["r"]]])
         self.kf.x = self._rested_state(soc)
         self.kf.P = self._initial_covariance(soc_var)
+        # The surface lag (models/thevenin.py): driven by the current alone, carried beside the
+        # state; a (re)start is a pack at rest, whose surface has caught up.
+        self.z_soc = 0.0
 
     def _rested_state(self, soc: float) -> np.ndarray:
         """The filter's state for a pack at rest at ``soc``."""
@@ -197,7 +193,7 @@ class T2rcUkf(FilterpyState, Estimator):
         return self.model.step_batch(xs, current_a, dt, temp_c)
 
     def _hx(self, xs: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
-        return self.model.terminal_voltage_batch(xs, current_a, temp_c)[:, np.newaxis]
+        return self.model.terminal_voltage_batch(xs, current_a, temp_c, self.z_soc)[:, np.newaxis]
 
     def _process_noise(self, dt_s: float) -> np.ndarray:
         q = self.tuning["q_diag"]
@@ -209,6 +205,7 @@ class T2rcUkf(FilterpyState, Estimator):
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         self.kf.Q = self._process_noise(dt_s)
         self.kf.predict(dt=dt_s, current_a=current_a, temp_c=temp_c)
+        self.z_soc = self.model.surface_step(self.z_soc, current_a, dt_s)
 
     def _measurement_variance(self, current_a: float) -> float:
         return float(self.tuning["r"])

@@ -102,7 +102,15 @@ def identify_tests(
             res = first
         else:
             # The reference's capacity: a cold HPPC stops at the cut-off long before empty.
-            res = identify(test, template, first.capacity_ah, None, progress, rates[n])
+            res = identify(
+                test,
+                template,
+                first.capacity_ah,
+                None,
+                progress,
+                rates[n],
+                shape_ocv=first.battery.ocv_curve(),
+            )
             res.notes.append(f"capacity of the {temps[ref]:.1f} degC test used")
         res.temperature_c = temps[n]
         results.append(res)

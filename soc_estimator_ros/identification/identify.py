@@ -12,18 +12,22 @@ from ..bag_io import BatterySeries
 from ..models.ocv import OcvCurve
 from ..models.rc_saft import RcModelParams
 from ..models.tables import ParamTable
-from ..models.thevenin import RcBranch, TheveninModel, TheveninParams
+from ..models.thevenin import RcBranch, TheveninParams
 from ..params import BatteryParams, OcvTable
 from .fit import (
+    ONSET_BEND_V,
     PulseFit,
     RcFit,
     charge_removed_ah,
     fit_pulse,
     fit_rc_pulse,
     monotone_ocv_table,
+    ocv_bend_v,
+    onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
 from .segment import IdentificationError, segment_pulses, start_after_last_charge
+from .surface import fit_surface_lag
 
 
 @dataclass
@@ -183,6 +187,7 @@ def identify(
     slow: BatterySeries | None = None,
     progress: Callable[[str], None] | None = None,
     rate_test: BatterySeries | None = None,
+    shape_ocv: OcvCurve | None = None,
 ) -> IdentificationResult:
     """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test.
 
@@ -212,11 +217,22 @@ def identify(
         )
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
+    knee_pulses = []  # pulses whose onset crosses a bend of the OCV: the surface lag's data
+    ocv_curve = OcvCurve(ocv_soc, ocv_v)
     for n, p in enumerate(pulses, 1):
         if progress:
             progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
+        bend_v = ocv_bend_v(shape_ocv or ocv_curve, onset_soc(test, p, soc_at))
+        anchor_end = bend_v > ONSET_BEND_V
+        if anchor_end:
+            knee_pulses.append(p)
+            notes.append(
+                f"pulse at SoC {soc_at[p.start]:.2f}: the OCV bends {1000 * bend_v:.1f} mV "
+                f"(> {1000 * ONSET_BEND_V:g}) over its onset: fitted on its end and the rest "
+                f"after it, at SoC {soc_at[p.end]:.2f}"
+            )
         try:
-            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s)
+            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s, anchor_end=anchor_end)
             rc_fit = fit_rc_pulse(test, p)
         except (IdentificationError, RuntimeError, ValueError) as exc:
             notes.append(f"pulse at t = {test.t_s[p.start]:.0f} s skipped: {exc}")
@@ -234,9 +250,7 @@ def identify(
     thevenin = thevenin_tables(by_soc)
     kinetic: list[KineticFit] = []
     if rate_test is not None:
-        kinetic = rate_test_fits(
-            rate_test, float(capacity), notes, thevenin, OcvCurve(ocv_soc, ocv_v)
-        )
+        kinetic = rate_test_fits(rate_test, float(capacity), notes, thevenin, ocv_curve)
         thevenin = with_kinetics(thevenin, [kinetic])
     span_v = float(ocv_v[-1] - ocv_v[0])
     span_soc = float(ocv_soc[-1] - ocv_soc[0])
@@ -256,6 +270,17 @@ def identify(
         rc_model=rc,
         thevenin=thevenin,
     )
+    if knee_pulses and shape_ocv is None:
+        # Only where this test's OCV has the bend's shape (a slow discharge): another test's
+        # table is its rests, straight between them.
+        lag_fit = fit_surface_lag(battery, test, soc_at, knee_pulses[0])
+        lag = lag_fit.lag
+        battery = replace(battery, thevenin=replace(thevenin, surface_lag=lag))
+        notes.append(
+            f"surface lag: g {lag.gain_soc_per_a:.4g} SoC/A, tau {lag.tau_s:.0f} s from the pulse "
+            f"at SoC {soc_at[knee_pulses[0].start]:.2f} (its window: "
+            f"{1000 * lag_fit.rmse_without_v:.1f} -> {1000 * lag_fit.rmse_with_v:.1f} mV RMSE)"
+        )
     rest_points = [
         (float(soc_at[p.rest_before]), rested_voltage(test, p.rest_before)) for p in pulses
     ]
@@ -351,6 +376,9 @@ def over_temperature(results: list[IdentificationResult], reference: int) -> Bat
             RcBranch(table(lambda f: f.r1_ohm), table(lambda f: f.tau1_s / f.r1_ohm)),
             RcBranch(table(lambda f: f.r2_ohm), table(lambda f: f.tau2_s / f.r2_ohm)),
         ),
+        # No temperature axis: the simulated packs' particle diffusivities do not depend on
+        # temperature (fitted on the 5 degC LFP pulse test alone, g comes out the same).
+        surface_lag=ref.battery.thevenin.surface_lag,
     )
     zero = tuple(0.0 for _ in ref.battery.ocv.soc)
     offsets = [
@@ -416,14 +444,9 @@ def simulate_voltage(
     charge moved; with ``soc_track`` (the SoC the identification counted, e.g. from a tester's
     reference) the model's SoC is set from it after each gap, its branch states kept.
     """
-    model = TheveninModel(
-        battery.ocv_curve(),
-        battery.thevenin,
-        battery.capacity_ah,
-        battery.coulomb_efficiency_charge,
-        battery.ocv.offset_table(),
-    )
+    model = battery.thevenin_model()
     x = model.rested_state(soc0)
+    z = 0.0  # the surface lag (0 without one)
     out = np.empty(series.t_s.size)
     temps = series.temperature_c
     for k in range(series.t_s.size):
@@ -431,9 +454,10 @@ def simulate_voltage(
         if k:
             dt = float(series.t_s[k] - series.t_s[k - 1])
             x = model.step(x, float(series.current_a[k - 1]), dt, temp)
+            z = model.surface_step(z, float(series.current_a[k - 1]), dt)
             if soc_track is not None and dt > gap_s:
                 x[0] = soc_track[k]
-        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp)
+        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp, z)
     return out
 
 

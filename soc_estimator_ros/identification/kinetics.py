@@ -272,4 +272,5 @@ def with_kinetics(
         kinetic=KineticParams(
             ParamTable.from_arrays(grid, a, temps), ParamTable.from_arrays(grid, i0, temps)
         ),
+        surface_lag=thevenin.surface_lag,
     )

@@ -4,7 +4,7 @@ from .coulomb import coulomb_efficiency, coulomb_step
 from .ocv import UNINFORMATIVE_SOC_STD, OcvCurve
 from .rc_saft import RcModelParams, SaftRcModel
 from .tables import ParamTable
-from .thevenin import KineticParams, RcBranch, TheveninModel, TheveninParams
+from .thevenin import KineticParams, RcBranch, SurfaceLag, TheveninModel, TheveninParams
 
 __all__ = [
     "UNINFORMATIVE_SOC_STD",
@@ -14,6 +14,7 @@ __all__ = [
     "RcBranch",
     "RcModelParams",
     "SaftRcModel",
+    "SurfaceLag",
     "TheveninModel",
     "TheveninParams",
     "coulomb_efficiency",

@@ -34,6 +34,13 @@ at the start of the step, for any dt::
 
 R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`ParamTable`), and
 so is the optional OCV shift with temperature: OCV(SoC, T) = OCV(SoC) + offset(T, SoC).
+
+Optionally (not in the papers) the OCV is read at the particles' surface SoC, ``SoC - z``, with
+``z`` a first-order lag of the current (:class:`SurfaceLag`): under load the surface empties
+ahead of the mean, and where the OCV bends (LFP's knee near full) the voltage follows the
+surface within minutes while the mean SoC takes tens of minutes. ``z`` is driven by the current
+alone, so the filters carry it beside their state, not in it (a state without noise would make
+their covariance singular).
 """
 
 from __future__ import annotations
@@ -90,6 +97,27 @@ class KineticParams:
 
 
 @dataclass(frozen=True)
+class SurfaceLag:
+    """The surface SoC's lag behind the mean SoC (one diffusion mode; not in the papers)::
+
+        dz/dt = (g I - z) / tau,   OCV read at SoC - z
+        z <- a z + (1 - a) g I,    a = exp(-dt / tau)   (exact for I held over the step)
+
+    Attributes:
+        gain_soc_per_a: g, the surface's steady offset per ampere of discharge (SoC / A).
+        tau_s: tau, seconds.
+    """
+
+    gain_soc_per_a: float
+    tau_s: float
+
+    def step(self, z_soc: float, current_a: float, dt_s: float) -> float:
+        """``z`` after ``dt_s`` seconds of ``current_a`` (discharge positive)."""
+        a = math.exp(-dt_s / self.tau_s)
+        return a * z_soc + (1.0 - a) * self.gain_soc_per_a * current_a
+
+
+@dataclass(frozen=True)
 class TheveninParams:
     """Thevenin model parameters (pack level).
 
@@ -97,11 +125,13 @@ class TheveninParams:
         r0_ohm: series (terminal) resistance table, ohms; with ``kinetic`` the ohmic part only.
         branches: the RC branches, fastest first by convention.
         kinetic: the optional Butler-Volmer overpotential; ``None`` is the papers' model.
+        surface_lag: the optional surface-SoC lag of the OCV; ``None`` is the papers' model.
     """
 
     r0_ohm: ParamTable
     branches: tuple[RcBranch, ...]
     kinetic: KineticParams | None = None
+    surface_lag: SurfaceLag | None = None
 
 
 class TheveninModel:
@@ -161,6 +191,11 @@ class TheveninModel:
         r = b.r_ohm.at(soc, temperature_c)
         return r, r * b.c_f.at(soc, temperature_c)
 
+    def surface_step(self, z_soc: float, current_a: float, dt_s: float) -> float:
+        """The surface lag ``z`` (SoC) after the step; 0 without a :class:`SurfaceLag`."""
+        lag = self.params.surface_lag
+        return 0.0 if lag is None else lag.step(z_soc, current_a, dt_s)
+
     # -- dynamics ----------------------------------------------------------------------------
     def step(
         self, x: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
@@ -206,12 +241,17 @@ class TheveninModel:
         return out
 
     def terminal_voltage_batch(
-        self, xs: np.ndarray, current_a: float, temperature_c: float | None = None
+        self,
+        xs: np.ndarray,
+        current_a: float,
+        temperature_c: float | None = None,
+        z_soc: float = 0.0,
     ) -> np.ndarray:
         """:meth:`terminal_voltage` for every row of ``xs``."""
         xt = xs.T
         soc = xt[0]
-        v = self.ocv.ocv_array(soc) - self.series_drop_array(soc, current_a, temperature_c)
+        ocv = self.ocv.ocv_array(soc - z_soc if z_soc else soc)
+        v = ocv - self.series_drop_array(soc, current_a, temperature_c)
         if self.ocv_offset is not None:
             v = v + self.ocv_offset.at_array(soc, temperature_c)
         if self.n_rc == 0:
@@ -234,11 +274,16 @@ class TheveninModel:
         return f
 
     def terminal_voltage(
-        self, x: np.ndarray, current_a: float, temperature_c: float | None = None
+        self,
+        x: np.ndarray,
+        current_a: float,
+        temperature_c: float | None = None,
+        z_soc: float = 0.0,
     ) -> float:
-        """Terminal voltage in volts (eq. 14)."""
+        """Terminal voltage in volts (eq. 14), the OCV read at ``SoC - z_soc`` (the surface
+        lag, :meth:`surface_step`; 0 is the papers' model)."""
         soc = float(x[0])
-        v = self.ocv.ocv(soc) - self.series_drop_v(soc, current_a, temperature_c)
+        v = self.ocv.ocv(soc - z_soc) - self.series_drop_v(soc, current_a, temperature_c)
         if self.ocv_offset is not None:
             v += self.ocv_offset.at(soc, temperature_c)
         for i in range(self.n_rc):
@@ -246,9 +291,14 @@ class TheveninModel:
         return v
 
     def output_jacobian(
-        self, x: np.ndarray, current_a: float, temperature_c: float | None = None
+        self,
+        x: np.ndarray,
+        current_a: float,
+        temperature_c: float | None = None,
+        z_soc: float = 0.0,
     ) -> np.ndarray:
-        """d V_o / d x as a (1, dim_x) row: [dOCV/dSoC - d(I R0 + eta)/dSoC, -1, ..., -1]."""
+        """d V_o / d x as a (1, dim_x) row: [dOCV/dSoC - d(I R0 + eta)/dSoC, -1, ..., -1]
+        (the OCV's slope at ``SoC - z_soc``: z does not depend on the state)."""
         soc = float(x[0])
         h = np.full((1, self.dim_x), -1.0)
         eps = 1e-4
@@ -256,7 +306,7 @@ class TheveninModel:
             self.series_drop_v(soc + eps, current_a, temperature_c)
             - self.series_drop_v(soc - eps, current_a, temperature_c)
         ) / (2.0 * eps)
-        h[0, 0] = self.ocv.slope(soc) - d_drop
+        h[0, 0] = self.ocv.slope(soc - z_soc) - d_drop
         if self.ocv_offset is not None:
             off = self.ocv_offset
             h[0, 0] += (off.at(soc + eps, temperature_c) - off.at(soc - eps, temperature_c)) / (
@@ -301,4 +351,9 @@ def one_rc_equivalent(params: TheveninParams) -> TheveninParams:
         ParamTable.from_arrays(first.soc, r_rows, temps),
         ParamTable.from_arrays(first.soc, c_rows, temps),
     )
-    return TheveninParams(r0_ohm=params.r0_ohm, branches=(branch,), kinetic=params.kinetic)
+    return TheveninParams(
+        r0_ohm=params.r0_ohm,
+        branches=(branch,),
+        kinetic=params.kinetic,
+        surface_lag=params.surface_lag,
+    )
