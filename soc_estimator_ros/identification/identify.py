@@ -273,7 +273,10 @@ def identify(
     if knee_pulses and shape_ocv is None:
         # Only where this test's OCV has the bend's shape (a slow discharge): another test's
         # table is its rests, straight between them.
-        lag_fit = fit_surface_lag(battery, test, soc_at, knee_pulses[0])
+        knee = knee_pulses[0]
+        window = test.window(knee.rest_before, knee.rest_end + 1)
+        v0, soc_path = simulate_open_loop(battery, window, float(soc_at[knee.rest_before]))
+        lag_fit = fit_surface_lag(battery.ocv_curve(), window, v0, soc_path)
         lag = lag_fit.lag
         battery = replace(battery, thevenin=replace(thevenin, surface_lag=lag))
         notes.append(
@@ -444,10 +447,22 @@ def simulate_voltage(
     charge moved; with ``soc_track`` (the SoC the identification counted, e.g. from a tester's
     reference) the model's SoC is set from it after each gap, its branch states kept.
     """
+    return simulate_open_loop(battery, series, soc0, soc_track, gap_s)[0]
+
+
+def simulate_open_loop(
+    battery: BatteryParams,
+    series: BatterySeries,
+    soc0: float,
+    soc_track: np.ndarray | None = None,
+    gap_s: float = 10.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`simulate_voltage`'s voltage (V) and the model's SoC at every sample."""
     model = battery.thevenin_model()
     x = model.rested_state(soc0)
     z = 0.0  # the surface lag (0 without one)
     out = np.empty(series.t_s.size)
+    soc = np.empty(series.t_s.size)
     temps = series.temperature_c
     for k in range(series.t_s.size):
         temp = None if math.isnan(temps[k]) else float(temps[k])
@@ -457,8 +472,9 @@ def simulate_voltage(
             z = model.surface_step(z, float(series.current_a[k - 1]), dt)
             if soc_track is not None and dt > gap_s:
                 x[0] = soc_track[k]
+        soc[k] = x[0]
         out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp, z)
-    return out
+    return out, soc
 
 
 def voltage_rmse(

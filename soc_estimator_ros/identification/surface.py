@@ -9,10 +9,11 @@ fixed first (``fit_pulse`` with ``anchor_end`` fits such a pulse on its end, awa
 so the lag only explains the onset and the early recovery.
 
 The fit: the model's voltage over the window (the rest before the pulse to the end of the rest
-after it) is simulated once without the lag, from a pack at rest at the window's SoC; the lag
-changes only the OCV term, ``v(g, tau) = v_0 - OCV(SoC) + OCV(SoC - z(g, tau))``, so each
-evaluation is one pass of the lag's recursion. A coarse grid over (g, tau) then scipy's
-``least_squares`` on (ln g, ln tau), bounded.
+after it), simulated once without the lag from a pack at rest at the window's SoC
+(``identify.simulate_open_loop``), is given with its SoC; the lag changes only the OCV term,
+``v(g, tau) = v_0 - OCV(SoC) + OCV(SoC - z(g, tau))``, so each evaluation is one pass of the
+lag's recursion. A coarse grid over (g, tau) then scipy's ``least_squares`` on (ln g, ln tau),
+bounded.
 """
 
 from __future__ import annotations
@@ -24,9 +25,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..bag_io import BatterySeries
+from ..models.ocv import OcvCurve
 from ..models.thevenin import SurfaceLag
-from ..params import BatteryParams
-from .segment import Pulse
 
 GAIN_BOUNDS_SOC_PER_A = (1.0e-5, 0.1)
 TAU_BOUNDS_S = (1.0, 3600.0)
@@ -55,30 +55,18 @@ def lag_path(current_a: np.ndarray, dt_s: np.ndarray, gain: float, tau_s: float)
 
 
 def fit_surface_lag(
-    battery: BatteryParams, test: BatterySeries, soc_at: np.ndarray, pulse: Pulse
+    ocv: OcvCurve, window: BatterySeries, v0: np.ndarray, soc: np.ndarray
 ) -> SurfaceLagFit:
-    """Fit g and tau on ``pulse``'s window of ``test`` (module docstring)."""
-    lo, hi = pulse.rest_before, pulse.rest_end + 1
-    model = battery.thevenin_model()
-    t = test.t_s[lo:hi]
-    current = test.current_a[lo:hi]
-    measured = test.voltage_v[lo:hi]
-    temps = test.temperature_c[lo:hi]
-    dt = np.diff(t)
-    x = model.rested_state(float(soc_at[lo]))
-    v0 = np.empty(t.size)
-    soc = np.empty(t.size)
-    for k in range(t.size):
-        temp = None if math.isnan(temps[k]) else float(temps[k])
-        if k:
-            x = model.step(x, float(current[k - 1]), float(dt[k - 1]), temp)
-        soc[k] = x[0]
-        v0[k] = model.terminal_voltage(x, float(current[k]), temp)
-    base = v0 - model.ocv.ocv_array(soc)
+    """Fit g and tau on ``window`` (a pulse and the rests around it), given the model's voltage
+    ``v0`` and SoC ``soc`` over it without the lag (module docstring)."""
+    current = window.current_a
+    measured = window.voltage_v
+    dt = np.diff(window.t_s)
+    base = v0 - ocv.ocv_array(soc)
 
     def residual(p: np.ndarray) -> np.ndarray:
         z = lag_path(current, dt, math.exp(p[0]), math.exp(p[1]))
-        return base + model.ocv.ocv_array(soc - z) - measured
+        return base + ocv.ocv_array(soc - z) - measured
 
     grid = [
         (math.log(g), math.log(tau))
