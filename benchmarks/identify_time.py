@@ -1,4 +1,5 @@
-"""Wall time of identifying each bundled pulse test (the way config/*.yaml were made).
+"""Wall time of identifying each bundled pulse test (alone, and with the rate and load tests at
+its temperature, the way config/*.yaml were made at 25 degC).
 
 Target (issue "Parameter identification"): <= 10 s per pulse test. Prints numbers, asserts
 nothing. With ``--real-data DIR`` (default ``../shared/real-data`` when present) also the
@@ -42,6 +43,16 @@ def main() -> int:
         timed(
             f"{chem}_pulse_test + slow discharge",
             lambda t=test, tp=template, sl=slow: identify(t, tp, slow=sl),
+        )
+        # As the bundled file was made at 25 degC: with the rate test (and the load test).
+        rate = read_battery_bag(ROOT / "bags" / f"{chem}_rate_test", reference_topic=None)
+        load_bag = ROOT / "bags" / f"{chem}_load_test"
+        load = read_battery_bag(load_bag, reference_topic=None) if load_bag.exists() else None
+        timed(
+            f"  + rate test{' + load test' if load is not None else ''}",
+            lambda t=test, tp=template, sl=slow, r=rate, lt=load: identify(
+                t, tp, slow=sl, rate_test=r, load_test=lt
+            ),
         )
     hppc = args.real_data / "panasonic18650pf_25C_HPPC.csv"
     if hppc.is_file():

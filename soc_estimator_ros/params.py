@@ -354,21 +354,20 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
 
     surface_lag = None
     if th.get("surface_lag") is not None:
-        sm = chk.mapping(th["surface_lag"], "thevenin.surface_lag")
-        surface_lag = SurfaceLag(
-            gain_soc_per_a=chk.number(
-                chk.get(sm, "gain_soc_per_a", "thevenin.surface_lag"),
-                "thevenin.surface_lag.gain_soc_per_a",
-                0.0,
-                1.0,
-            ),
-            tau_s=chk.number(
-                chk.get(sm, "tau_s", "thevenin.surface_lag"),
-                "thevenin.surface_lag.tau_s",
-                0.1,
-                1.0e5,
-            ),
-        )
+        key = "thevenin.surface_lag"
+        sm = chk.mapping(th["surface_lag"], key)
+        bounds = {"gain_soc_per_a": (0.0, 1.0), "tau_s": (0.1, 1.0e5), "soc_max": (0.0, 1.0)}
+        modes = {}
+        for field_name, (lo, hi) in bounds.items():
+            where = f"{key}.{field_name}"
+            values = chk.numbers(chk.get(sm, field_name, key), where)
+            modes[field_name] = tuple(
+                chk.number(v, f"{where}[{i}]", lo, hi) for i, v in enumerate(values)
+            )
+            n = len(modes["gain_soc_per_a"])
+            if len(values) != n:
+                raise chk.fail(where, values, f"{n} values, one per gain (mode)")
+        surface_lag = SurfaceLag(**modes)
 
     filters = _parse_filters(chk, root.get("filters", {}))
     return BatteryParams(
@@ -443,8 +442,9 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
         out["thevenin"]["kinetic"] = {"a_v": table(th.kinetic.a_v), "i0_a": table(th.kinetic.i0_a)}
     if th.surface_lag is not None:
         out["thevenin"]["surface_lag"] = {
-            "gain_soc_per_a": th.surface_lag.gain_soc_per_a,
-            "tau_s": th.surface_lag.tau_s,
+            "gain_soc_per_a": list(th.surface_lag.gain_soc_per_a),
+            "tau_s": list(th.surface_lag.tau_s),
+            "soc_max": list(th.surface_lag.soc_max),
         }
     if params.ocv.temperature_c:
         out["ocv"]["temperature_c"] = list(params.ocv.temperature_c)

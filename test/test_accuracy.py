@@ -62,14 +62,15 @@ pytestmark = pytest.mark.skipif(not FIELD_RUNS, reason="no field-run bags under 
 
 # Where a target is not met today: (test, bag, start offset) -> the measured numbers. These stay
 # strict xfails, with the issue's bound untouched, so they flag the day they pass. Causes (README
-# "Accuracy"): the LFP file's 2RC with its surface lag and rate kinetics, identified on pulse and
-# rate tests at 25 and 5 degC, misses the field runs by 60 / 55 / 40 mV, most of it where run 2
-# ends (SoC 0.20-0.25, below the lowest table point, 0.25: the voltage falls 0.2-0.4 V below the
-# model under 7 A). On the plateau a few mV are worth 1 % of SoC.
+# "Accuracy"): LFP run 2 holds its SoC 1-1.8 % low from its 10th minute to its 40th, on the
+# flat plateau (0.73 -> 0.53) where the voltage cannot bring it back: the pack there sits 15-25
+# mV below the model after each 10-30 A burst (the LFP file's 2RC with its two-mode surface lag,
+# identified on the pulse, rate and load tests, follows the field runs within 40 / 40 / 46 mV).
+# On the plateau a few mV are worth 1 % of SoC.
 SHORTFALLS = {
-    ("hybrid", "lfp_field_run_2_partial", 0.0): "MAE 1.29 %, max 3.91 % (at the run's end)",
-    ("t2rc_ukf", "lfp_field_run_2_partial", 0.0): "MAE 2.35 %",
-    ("hybrid", "lfp_field_run_2_partial", -0.3): "MAE 1.98 %, max 4.71 %, within 2 % after 24 s",
+    ("hybrid", "lfp_field_run_2_partial", 0.0): "MAE 1.007 % (max 1.84 %)",
+    ("hybrid", "lfp_field_run_2_partial", -0.3): "MAE 1.32 %, max 2.34 % (2 % crossed again "
+    "at SoC 0.65 and at the run's end)",
 }
 
 

@@ -418,16 +418,18 @@ def test_sigma_points_with_a_negative_covariance_weight_are_refused(name: str) -
 @pytest.mark.parametrize("name", ["t2rc_ukf", "hybrid", "ekf", "dcc_ekf"])
 def test_the_thevenin_filters_carry_the_surface_lag(name: str) -> None:
     """The surface lag is driven by the current alone, beside the filter's state: after a
-    minute of 2 A it is the lag's own recursion, and a reset (a pack at rest) clears it."""
-    lag = SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    minute of 2 A each mode is the lag's own recursion, ``z_soc`` their sum, and a reset (a
+    pack at rest) clears them."""
+    lag = SurfaceLag(gain_soc_per_a=(0.004, 0.008), tau_s=(60.0, 600.0), soc_max=(1.0, 0.9))
     battery = replace(LFP, thevenin=replace(LFP.thevenin, surface_lag=lag))
     est = make_estimator(name, battery, 0.6, 0.01)
-    expected = 0.0
+    expected = (0.0, 0.0)
     for k in range(601):
         est.step(0.1 * k, 2.0, 12.9)
         if k:
-            expected = lag.step(expected, 2.0, 0.1)
-    assert est.z_soc == pytest.approx(expected, rel=1e-12)
-    assert expected == pytest.approx(0.008 * (1.0 - math.exp(-1.0)), rel=1e-9)
+            expected = lag.step(expected, 2.0, 0.1, 0.6)  # 2 A for a minute: SoC 0.6 - 0.006
+    assert est.z_modes == pytest.approx(expected, rel=1e-12)
+    assert est.z_soc == pytest.approx(sum(expected), rel=1e-12)
+    assert expected[0] == pytest.approx(0.008 * (1.0 - math.exp(-1.0)), rel=1e-9)
     est.reset_soc(0.6, 0.01)
-    assert est.z_soc == 0.0
+    assert est.z_modes == (0.0, 0.0) and est.z_soc == 0.0

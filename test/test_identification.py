@@ -26,6 +26,13 @@ from soc_estimator_ros.identification.identify import (
     voltage_rmse,
 )
 from soc_estimator_ros.identification.segment import IdentificationError, segment_pulses
+from soc_estimator_ros.identification.surface import (
+    TAU_BOUNDS_S,
+    LagStage,
+    LagWindow,
+    fit_surface_lag,
+    mode_path,
+)
 from soc_estimator_ros.models import (
     OcvCurve,
     ParamTable,
@@ -78,12 +85,12 @@ def synthetic_pulse_test(
     t = np.arange(current.size) * 0.1
     v = np.empty(current.size)
     x = model.rested_state(1.0)
-    z = 0.0
+    z = model.surface_rest()
     for k in range(current.size):
         if k:
+            z = model.surface_step(z, current[k - 1], 0.1, x[0])
             x = model.step(x, current[k - 1], 0.1)
-            z = model.surface_step(z, current[k - 1], 0.1)
-        v[k] = model.terminal_voltage(x, current[k], None, z)
+        v[k] = model.terminal_voltage(x, current[k], None, sum(z))
     i_meas = current
     if noise:
         # Sensor noise like the bags' (no gain error: a gain error biases every resistance
@@ -109,12 +116,12 @@ def synthetic_slow_discharge(ocv: OcvCurve, lag: SurfaceLag | None = None) -> Ba
     current[:600] = 0.0  # a 10-min rest first
     v = np.empty(n)
     x = model.rested_state(1.0)
-    z = 0.0
+    z = model.surface_rest()
     for k in range(n):
         if k:
+            z = model.surface_step(z, current[k - 1], 1.0, x[0])
             x = model.step(x, current[k - 1], 1.0)
-            z = model.surface_step(z, current[k - 1], 1.0)
-        v[k] = model.terminal_voltage(x, current[k], None, z)
+        v[k] = model.terminal_voltage(x, current[k], None, sum(z))
     return BatterySeries(
         t_s=t,
         stamp_ns=(t * 1e9).astype(np.int64),
@@ -182,18 +189,18 @@ def test_a_pulse_whose_onset_crosses_a_bend_of_the_ocv_is_fitted_on_its_end() ->
     ) / (3600.0 * 5.0)
     onset = fit_pulse(series, pulse, soc_at)
     assert onset.r0_ohm > 1.06 * TRUE["r0"] and onset.r1_ohm > 1.3 * TRUE["r1"], onset
-    # Without a lag in the data the fitted one is small: measured 4.1e-4 SoC per ampere (what
+    # Without a lag in the data the fitted one is small: measured 3.9e-4 SoC per ampere (what
     # the window's other fits leave at the bend), asserted below a quarter of the LFP bag's
-    # fitted 3.8e-3.
+    # fitted fast mode, 3.8e-3 (no slower mode kept).
     lag = res.battery.thevenin.surface_lag
-    assert lag is not None and lag.gain_soc_per_a < 1e-3, lag
+    assert lag is None or (lag.n_modes == 1 and lag.gain_soc_per_a[0] < 1e-3), lag
 
 
 def test_the_surface_lag_is_found_on_the_pulse_that_crosses_the_bend() -> None:
     """The same test with a known surface lag (g 0.004 SoC/A, tau 60 s: the LFP bag's order)
     in the data, the slow discharge's too: the fit finds it back, and the model with it
     follows the whole test."""
-    true = SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    true = SurfaceLag(gain_soc_per_a=(0.004,), tau_s=(60.0,), soc_max=(1.0,))
     series = synthetic_pulse_test(noise=False, ocv=KNEE_OCV, lag=true)
     res = identify(series, SLA, capacity_ah=5.0, slow=synthetic_slow_discharge(KNEE_OCV, true))
     lag = res.battery.thevenin.surface_lag
@@ -202,11 +209,62 @@ def test_the_surface_lag_is_found_on_the_pulse_that_crosses_the_bend() -> None:
     # 2 % / 5 %) and the slow discharge's own lag in the OCV table leave. Measured: g -5 %,
     # tau -23 % (tau -12 %, g +6 % with a slow discharge free of the lag): tau trades against the
     # fast branch's 25 s over the same minutes.
+    assert lag.n_modes == 1, lag  # a second mode is not worth MODE_GAIN of the RMSE
     assert lag.gain_soc_per_a == pytest.approx(true.gain_soc_per_a, rel=0.10), lag
     assert lag.tau_s == pytest.approx(true.tau_s, rel=0.30), lag
     without = replace(res.battery, thevenin=replace(res.battery.thevenin, surface_lag=None))
     with_lag_v, without_v = (voltage_rmse(b, series, 1.0) for b in (res.battery, without))
     assert with_lag_v < 0.5 * without_v, (with_lag_v, without_v)
+
+
+# An OCV with a knee near full and a bend at 0.4 (LFP's cathode knee and a graphite stage).
+BENT_OCV = OcvCurve(
+    [0.0, 0.2, 0.35, 0.4, 0.45, 0.6, 0.9, 0.97, 1.0],
+    [12.0, 12.6, 12.8, 12.95, 13.05, 13.08, 13.2, 13.3, 13.8],
+)
+
+
+def lag_window(
+    soc0: float, current_a: float, pulse_s: float, modes, ocv: OcvCurve = BENT_OCV
+) -> LagWindow:
+    """A window on the fit's 1-s grid (10 min rest, the pulse, 1 h rest) of a 5 Ah pack whose
+    model is exact but for the lag: v0 = OCV(SoC), measured = OCV(SoC - z)."""
+    current = np.concatenate([np.zeros(600), np.full(int(pulse_s), current_a), np.zeros(3600)])
+    soc = soc0 - np.concatenate([[0.0], np.cumsum(current[:-1])]) / (3600.0 * 5.0)
+    z = sum((mode_path(current, soc, *m) for m in modes), np.zeros(soc.size))
+    return LagWindow(current, ocv.ocv_array(soc - z), ocv.ocv_array(soc), soc)
+
+
+def test_the_surface_lag_modes_come_back_stage_by_stage() -> None:
+    """Two modes, the knee's (everywhere) and a slower one driven below 0.9 only: fitted in
+    stages, the knee's on the 0.2 C pulse from full, the second on 3 C steps below the knee
+    with the first held, each comes back; the fit's model is the data's, so the bound is the
+    optimizer's tolerance (measured within 1e-4 relative)."""
+    true = [(0.004, 15.0, 1.0), (0.008, 60.0, 0.9)]
+    knee = [lag_window(1.0, 1.0, 1800.0, true)]
+    below = [lag_window(soc0, 15.0, 120.0, true) for soc0 in (0.9, 0.5, 0.43, 0.37)]
+    fit = fit_surface_lag(BENT_OCV, [LagStage(knee), LagStage(below, soc_max=0.9)])
+    assert fit.kept == (True, True), fit
+    lag = fit.lag
+    assert lag.gain_soc_per_a == pytest.approx((0.004, 0.008), rel=1e-3)
+    assert lag.tau_s == pytest.approx((15.0, 60.0), rel=1e-3)
+    assert lag.soc_max == (1.0, 0.9)
+    for without, with_mode in fit.rmse_v:
+        assert with_mode < 1e-4 < without  # V: exact with the modes, mV off without
+
+
+def test_a_lag_mode_is_kept_only_where_it_pays() -> None:
+    """A stage without windows gets no mode; a lag the data do not hold is not kept (< 10 %
+    off); one slower than TAU_BOUNDS_S (the fit ends at the bound) is not kept either."""
+    plain = [lag_window(soc0, 15.0, 120.0, []) for soc0 in (0.5, 0.43)]
+    fit = fit_surface_lag(BENT_OCV, [LagStage([]), LagStage(plain)])
+    assert fit.lag is None and fit.kept == (False, False), fit
+    assert np.isnan(fit.rmse_v[0][0])
+    slow = [(0.01, 3.0 * TAU_BOUNDS_S[1], 1.0)]
+    windows = [lag_window(soc0, 15.0, 120.0, slow) for soc0 in (0.5, 0.43)]
+    fit = fit_surface_lag(BENT_OCV, [LagStage(windows)])
+    assert fit.lag is None and fit.kept == (False,), fit
+    assert fit.rmse_v[0][1] < 0.9 * fit.rmse_v[0][0]  # it would pay: the bound is what refuses
 
 
 def test_ocv_points_from_rests_and_rc_model() -> None:
@@ -309,21 +367,23 @@ def bag_identification(chem: str):
 
 
 # Measured with the identified files (README "Identification"): the pulse tests' RMSE is
-# SLA 9.6 mV, LFP 8.1 mV (24.9 mV before the knee pulse's end fit and the surface lag). The
+# SLA 9.6 mV, LFP 8.2 mV identified from the pulse test alone (24.9 mV before the knee pulse's
+# end fit and the surface lag; 12.1 mV with the bundled file, made with the rate and load tests
+# too). The
 # issue's bounds stay as they are; where they are not met the test is a strict xfail carrying
 # the numbers, so it flags the day they are met.
 FIELD_XFAIL = {
-    "lfp": "LFP field runs: 60 / 55 / 40 mV RMSE > 30 mV (the steep end below 25 % and the "
-    "light-load error at 70-80 %; its fastest branch, tau 30-45 s, is not seen by 5-s rate "
-    "pulses)"
+    "lfp": "LFP field runs: 41 / 40 / 46 mV RMSE > 30 mV (39 / 32 / 44 above SoC 0.25: after "
+    "each 10-30 A burst the pack sits 15-25 mV off the model for minutes; below 0.25 the "
+    "tables are held and the pack falls 0.1-0.8 V further under load)"
 }
 
 
 @cache
 def bag_identification_full(chem: str):
     """Everything soc_identify can use from the bundled bags: the pulse test and rate test at
-    each temperature recorded (25 and 5 degC) and the slow discharge, as the CLI combines them
-    (the bundled SLA file's command)."""
+    each temperature recorded (25 and 5 degC), the slow discharge and the load test where there
+    is one (LFP), as the CLI combines them (the bundled files' commands)."""
     suffixes = [s for s in ("", "_5c") if (BAGS / f"{chem}_pulse_test{s}").exists()]
     if not all((BAGS / f"{chem}_rate_test{s}").exists() for s in suffixes):
         pytest.skip(f"no {chem} rate-test bags")
@@ -342,6 +402,7 @@ def bag_identification_full(chem: str):
         read(f"{chem}_slow_discharge"),
         None,
         rate_tests=[read(f"{chem}_rate_test{s}") for s in suffixes],
+        load_test=read(f"{chem}_load_test") if (BAGS / f"{chem}_load_test").exists() else None,
     )
     return battery
 

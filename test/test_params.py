@@ -159,19 +159,27 @@ def test_ocv_temperature_shift_is_validated_and_round_trips(tmp_path) -> None:
 def test_surface_lag_is_validated_and_round_trips(tmp_path) -> None:
     tree = base()
     path = tmp_path / "t.yaml"
-    for bad, named in (
-        ({"gain_soc_per_a": -0.001, "tau_s": 60.0}, "gain_soc_per_a"),
-        ({"gain_soc_per_a": 0.004, "tau_s": 0.0}, "tau_s"),
-        ({"gain_soc_per_a": 0.004}, "tau_s"),
+    good = {"gain_soc_per_a": [0.004, 0.008], "tau_s": [60.0, 600.0], "soc_max": [1.0, 0.9]}
+    for change, named in (
+        ({"gain_soc_per_a": [-0.001, 0.008]}, r"gain_soc_per_a\[0\]"),
+        ({"tau_s": [60.0, 0.0]}, r"tau_s\[1\]"),
+        ({"soc_max": [1.0, 1.5]}, r"soc_max\[1\]"),
+        ({"tau_s": None}, "tau_s"),  # missing
+        ({"gain_soc_per_a": 0.004}, "gain_soc_per_a"),  # a list per key, one entry per mode
+        ({"gain_soc_per_a": [], "tau_s": [], "soc_max": []}, "gain_soc_per_a"),
+        ({"tau_s": [60.0]}, "tau_s"),
+        ({"soc_max": [1.0]}, "soc_max"),
     ):
+        bad = {k: v for k, v in {**good, **change}.items() if v is not None}
         tree["thevenin"]["surface_lag"] = bad
         path.write_text(yaml.safe_dump(tree))
         with pytest.raises(ParamFileError, match=rf"thevenin.surface_lag.{named}"):
             load_battery_params(path)
-    tree["thevenin"]["surface_lag"] = {"gain_soc_per_a": 0.004, "tau_s": 60.0}
+    tree["thevenin"]["surface_lag"] = good
     path.write_text(yaml.safe_dump(tree))
     params = load_battery_params(path)
-    assert params.thevenin.surface_lag == SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    assert params.thevenin.surface_lag == SurfaceLag((0.004, 0.008), (60.0, 600.0), (1.0, 0.9))
+    assert params.name == tree["name"]  # the lag's keys are not the file's
     again = parse_battery_params(battery_params_to_dict(params))
     assert again.thevenin.surface_lag == params.thevenin.surface_lag
 

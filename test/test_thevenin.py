@@ -129,29 +129,47 @@ def test_array_evaluation_follows_the_temperature_it_is_given() -> None:
     assert table.at_array(socs, 31.0) == pytest.approx([table.at(s, 31.0) for s in socs])
 
 
-def test_the_surface_lag_is_a_first_order_lag_of_the_current_and_moves_the_ocv_only() -> None:
-    """z follows g I with time constant tau, exactly for any split of a held current, and the
-    voltage reads the OCV at SoC - z while the drop stays at the SoC."""
+def test_the_surface_lag_is_a_sum_of_first_order_lags_of_the_current_and_moves_the_ocv_only() -> (
+    None
+):
+    """Each mode z_j follows g_j I with time constant tau_j, exactly for any split of a held
+    current, and the voltage reads the OCV at SoC - (z_1 + z_2) while the drop stays at the
+    SoC."""
     rng = np.random.default_rng(5)
     plain = make_model(2, rng)
-    lag = SurfaceLag(gain_soc_per_a=0.004, tau_s=60.0)
+    lag = SurfaceLag(gain_soc_per_a=(0.004, 0.008), tau_s=(60.0, 600.0), soc_max=(1.0, 0.9))
     model = TheveninModel(
         OCV, TheveninParams(plain.params.r0_ohm, plain.params.branches, surface_lag=lag), 5.0
     )
-    assert plain.surface_step(0.3, 2.0, 10.0) == 0.0  # the papers' model: no lag
-    one = model.surface_step(0.0, 2.0, 300.0)
-    assert one == pytest.approx(0.008 * (1.0 - np.exp(-5.0)), rel=1e-12)
-    z = 0.0
+    assert plain.surface_rest() == ()  # the papers' model: no lag
+    assert plain.surface_step((), 2.0, 10.0, 0.6) == ()
+    assert model.surface_rest() == (0.0, 0.0)
+    one = model.surface_step(model.surface_rest(), 2.0, 300.0, 0.6)
+    assert one == pytest.approx(
+        (0.008 * (1.0 - np.exp(-5.0)), 0.016 * (1.0 - np.exp(-0.5))), rel=1e-12
+    )
+    # Above its soc_max a mode is not driven: it only relaxes.
+    top = model.surface_step(one, 2.0, 300.0, 0.95)
+    assert top[1] == pytest.approx(one[1] * np.exp(-0.5), rel=1e-12)
+    assert top[0] == pytest.approx(one[0] * np.exp(-5.0) + 0.008 * (1 - np.exp(-5.0)), rel=1e-12)
+    z = model.surface_rest()
     for _ in range(3000):
-        z = model.surface_step(z, 2.0, 0.1)
+        z = model.surface_step(z, 2.0, 0.1, 0.6)
     assert z == pytest.approx(one, rel=1e-9)  # the recursion's round-off over 3000 steps
     x = np.array([0.6, 0.01, 0.02])
-    expected = OCV.ocv(0.6 - z) - model.series_drop_v(0.6, 3.0) - 0.03
-    assert model.terminal_voltage(x, 3.0, None, z) == pytest.approx(expected, abs=1e-12)
+    expected = OCV.ocv(0.6 - sum(z)) - model.series_drop_v(0.6, 3.0) - 0.03
+    z_soc = sum(z)
+    assert model.terminal_voltage(x, 3.0, None, z_soc) == pytest.approx(expected, abs=1e-12)
     assert model.terminal_voltage(x, 3.0) == pytest.approx(plain.terminal_voltage(x, 3.0))
     xs = np.array([x, [0.3, 0.0, 0.01]])
-    batch = model.terminal_voltage_batch(xs, 3.0, None, z)
+    batch = model.terminal_voltage_batch(xs, 3.0, None, z_soc)
     # ocv_array interpolates the cubic sampled every 1/4000 of the table: within 1 uV.
-    assert batch[0] == pytest.approx(model.terminal_voltage(x, 3.0, None, z), abs=1e-6)
-    h = model.output_jacobian(x, 3.0, None, z)
-    assert h[0, 0] == pytest.approx(OCV.slope(0.6 - z) - 0.0, abs=1e-9)
+    assert batch[0] == pytest.approx(model.terminal_voltage(x, 3.0, None, z_soc), abs=1e-6)
+    h = model.output_jacobian(x, 3.0, None, z_soc)
+    assert h[0, 0] == pytest.approx(OCV.slope(0.6 - z_soc) - 0.0, abs=1e-9)
+
+
+def test_a_surface_lag_needs_one_tau_and_soc_max_per_gain() -> None:
+    for gains, taus, soc_max in (((), (), ()), ((0.004,), (60.0, 600.0), (1.0,))):
+        with pytest.raises(ValueError, match="one tau and one soc_max per gain"):
+            SurfaceLag(gain_soc_per_a=gains, tau_s=taus, soc_max=soc_max)

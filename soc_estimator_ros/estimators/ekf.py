@@ -45,7 +45,9 @@ class Ekf(FilterpyState, Estimator):
             self.kf.R = np.array([[self.tuning["r"]]])
         self.kf.x = self.model.rested_state(soc)
         self.kf.P = np.diag([soc_var, self.tuning["p0_v"]])
-        self.z_soc = 0.0  # the surface lag, beside the state (t2rc_ukf.py)
+        # The surface lag's modes and their sum, beside the state (t2rc_ukf.py).
+        self.z_modes = self.model.surface_rest()
+        self.z_soc = 0.0
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         m = self.model
@@ -62,7 +64,8 @@ class Ekf(FilterpyState, Estimator):
         )
         self.kf.Q = np.diag(np.asarray(self.tuning["q_diag"], dtype=float) * dt_s)
         self.kf.predict(u=np.array([current_a]))
-        self.z_soc = m.surface_step(self.z_soc, current_a, dt_s)
+        self.z_modes = m.surface_step(self.z_modes, current_a, dt_s, float(x[0]))
+        self.z_soc = sum(self.z_modes)
 
     def _jacobian(self, x: np.ndarray, current_a: float, temp_c) -> np.ndarray:
         return self.model.output_jacobian(x, current_a, temp_c, self.z_soc)

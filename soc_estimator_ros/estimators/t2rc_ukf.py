@@ -178,7 +178,9 @@ class T2rcUkf(FilterpyState, Estimator):
         self.kf.x = self._rested_state(soc)
         self.kf.P = self._initial_covariance(soc_var)
         # The surface lag (models/thevenin.py): driven by the current alone, carried beside the
-        # state; a (re)start is a pack at rest, whose surface has caught up.
+        # state; a (re)start is a pack at rest, whose surface has caught up. ``z_modes`` are
+        # its modes, ``z_soc`` their sum (what the voltage reads).
+        self.z_modes = self.model.surface_rest()
         self.z_soc = 0.0
 
     def _rested_state(self, soc: float) -> np.ndarray:
@@ -203,9 +205,11 @@ class T2rcUkf(FilterpyState, Estimator):
         return self._q_matrix * dt_s  # == diag(q * dt): the zeros stay zeros
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
+        soc = float(self.kf.x[0])
         self.kf.Q = self._process_noise(dt_s)
         self.kf.predict(dt=dt_s, current_a=current_a, temp_c=temp_c)
-        self.z_soc = self.model.surface_step(self.z_soc, current_a, dt_s)
+        self.z_modes = self.model.surface_step(self.z_modes, current_a, dt_s, soc)
+        self.z_soc = sum(self.z_modes)
 
     def _measurement_variance(self, current_a: float) -> float:
         return float(self.tuning["r"])

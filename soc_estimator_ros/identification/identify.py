@@ -26,8 +26,8 @@ from .fit import (
     onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
-from .segment import IdentificationError, segment_pulses, start_after_last_charge
-from .surface import fit_surface_lag
+from .segment import IdentificationError, Pulse, segment_pulses, start_after_last_charge
+from .surface import MODE_GAIN, LagStage, LagWindow, fit_surface_lag
 
 
 @dataclass
@@ -188,6 +188,7 @@ def identify(
     progress: Callable[[str], None] | None = None,
     rate_test: BatterySeries | None = None,
     shape_ocv: OcvCurve | None = None,
+    load_test: BatterySeries | None = None,
 ) -> IdentificationResult:
     """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test.
 
@@ -195,6 +196,9 @@ def identify(
     begins with one (reported). Every fit that fails is skipped and reported, never guessed.
     With ``rate_test`` (a rate test at the same temperature, starting full), R0 becomes the
     ohmic part of the drop and the Butler-Volmer overpotential is added (``kinetics.py``).
+    The surface lag (``surface.py``) is fitted on the windows of the pulse test, the rate test
+    and ``load_test`` (steps at a heavy load with long rests: the slow recovery the others do
+    not excite), unless ``shape_ocv`` is given (another temperature's test).
     """
     notes: list[str] = []
     test = from_full(test, notes, "pulse test")
@@ -217,7 +221,6 @@ def identify(
         )
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
-    knee_pulses = []  # pulses whose onset crosses a bend of the OCV: the surface lag's data
     ocv_curve = OcvCurve(ocv_soc, ocv_v)
     for n, p in enumerate(pulses, 1):
         if progress:
@@ -225,7 +228,6 @@ def identify(
         bend_v = ocv_bend_v(shape_ocv or ocv_curve, onset_soc(test, p, soc_at))
         anchor_end = bend_v > ONSET_BEND_V
         if anchor_end:
-            knee_pulses.append(p)
             notes.append(
                 f"pulse at SoC {soc_at[p.start]:.2f}: the OCV bends {1000 * bend_v:.1f} mV "
                 f"(> {1000 * ONSET_BEND_V:g}) over its onset: fitted on its end and the rest "
@@ -270,20 +272,11 @@ def identify(
         rc_model=rc,
         thevenin=thevenin,
     )
-    if knee_pulses and shape_ocv is None:
-        # Only where this test's OCV has the bend's shape (a slow discharge): another test's
-        # table is its rests, straight between them.
-        knee = knee_pulses[0]
-        window = test.window(knee.rest_before, knee.rest_end + 1)
-        v0, soc_path = simulate_open_loop(battery, window, float(soc_at[knee.rest_before]))
-        lag_fit = fit_surface_lag(battery.ocv_curve(), window, v0, soc_path)
-        lag = lag_fit.lag
-        battery = replace(battery, thevenin=replace(thevenin, surface_lag=lag))
-        notes.append(
-            f"surface lag: g {lag.gain_soc_per_a:.4g} SoC/A, tau {lag.tau_s:.0f} s from the pulse "
-            f"at SoC {soc_at[knee_pulses[0].start]:.2f} (its window: "
-            f"{1000 * lag_fit.rmse_without_v:.1f} -> {1000 * lag_fit.rmse_with_v:.1f} mV RMSE)"
-        )
+    if shape_ocv is None:
+        # Only where this test's OCV has the bends' shape (a slow discharge, or the rests
+        # alone): another test's table is its rests, straight between them.
+        extras = [(rate_test, []), (load_test, notes)]  # the rate test's start: rate_test_fits
+        battery = with_surface_lag(battery, test, pulses, soc_at, extras, notes)
     rest_points = [
         (float(soc_at[p.rest_before]), rested_voltage(test, p.rest_before)) for p in pulses
     ]
@@ -301,6 +294,97 @@ def identify(
         test_temperature_c(test),
         kinetic,
     )
+
+
+#: A window of another test (rate, load) belongs below the knee if it starts within this of
+#: the knee's end (SoC): their charge counts differ from the pulse test's by up to about 1 %.
+KNEE_END_TOLERANCE = 0.02
+
+
+def with_surface_lag(
+    battery: BatteryParams,
+    test: BatterySeries,
+    pulses: list[Pulse],
+    soc_at: np.ndarray,
+    extras: list[tuple[BatterySeries | None, list[str]]],
+    notes: list[str],
+) -> BatteryParams:
+    """``battery`` with the surface lag fitted (``surface.py``): a first mode on the pulses of
+    ``test`` whose onset crosses a bend (the knee), a second on the windows below the knee of
+    ``test`` and of each other test in ``extras`` (a rate test, a load test; starting full like
+    ``test``, from_full's notes to the list given with it) that cross a bend, driven only
+    below the knee's end."""
+    ocv = battery.ocv_curve()
+    knee = [p for p in pulses if ocv_bend_v(ocv, onset_soc(test, p, soc_at)) > ONSET_BEND_V]
+    knee_end = min((float(soc_at[p.rest_end]) for p in knee), default=1.0)
+    below = [(test, [p for p in pulses if p not in knee], soc_at)]
+    for extra, extra_notes in extras:
+        if extra is not None:
+            extra = from_full(extra, extra_notes, "load test")
+            extra_soc = 1.0 - charge_removed_ah(extra) / battery.capacity_ah
+            below.append((extra, segment_pulses(extra), extra_soc))
+    below_windows = [
+        w
+        for series, ps, soc in below
+        for w in lag_windows(
+            battery,
+            series,
+            [p for p in ps if soc[p.rest_before] <= knee_end + KNEE_END_TOLERANCE],
+            soc,
+        )
+    ]
+    stages = (
+        LagStage(lag_windows(battery, test, knee, soc_at)),
+        LagStage(below_windows, soc_max=knee_end),
+    )
+    fit = fit_surface_lag(ocv, stages)
+    names = ("the knee", f"below the knee (SoC <= {knee_end:.3f})")
+    for name, stage, (without, with_mode), kept in zip(
+        names, stages, fit.rmse_v, fit.kept, strict=True
+    ):
+        if not stage.windows:
+            notes.append(f"surface lag, {name}: no window crosses a bend of the OCV")
+            continue
+        verdict = "kept" if kept else f"not kept (< {100 * MODE_GAIN:.0f} % off, or at a bound)"
+        notes.append(
+            f"surface lag, {name}: {len(stage.windows)} window(s) across a bend, "
+            f"{1000 * without:.1f} -> {1000 * with_mode:.1f} mV RMSE with a mode: {verdict}"
+        )
+    if fit.lag is None:
+        return battery
+    modes = ", ".join(
+        f"g {g:.4g} SoC/A tau {tau:.0f} s below SoC {soc_max:.3f}"
+        for g, tau, soc_max in zip(
+            fit.lag.gain_soc_per_a, fit.lag.tau_s, fit.lag.soc_max, strict=True
+        )
+    )
+    notes.append(f"surface lag: {modes}")
+    return replace(battery, thevenin=replace(battery.thevenin, surface_lag=fit.lag))
+
+
+def lag_windows(
+    battery: BatteryParams, test: BatterySeries, pulses: list[Pulse], soc_at: np.ndarray
+) -> list[LagWindow]:
+    """The windows (the rest before a pulse, the pulse, the rest after) whose SoC crosses a bend
+    of ``battery``'s OCV (by more than ``ONSET_BEND_V``), with the open-loop voltage and SoC over
+    each (from a pack at rest at the window's SoC): the surface lag's data (``surface.py``).
+    Where the OCV is straight the pulse's own branch fit has already taken up what a lag does
+    there, and such a window would pull the lag towards 0."""
+    ocv = battery.ocv_curve()
+    out = []
+    for p in pulses:
+        # Up to the pack's lowest SoC in use (limits.soc_min): below it the tables are held
+        # and what a lag fitted there would absorb is their error, not the surface's.
+        in_use = np.flatnonzero(soc_at[p.rest_before : p.rest_end + 1] < battery.limits.soc_min)
+        end = p.rest_end + 1 if not in_use.size else p.rest_before + int(in_use[0])
+        if end - p.rest_before < 3:
+            continue
+        if ocv_bend_v(ocv, soc_at[p.rest_before : end]) <= ONSET_BEND_V:
+            continue
+        window = test.window(p.rest_before, end)
+        v0, soc = simulate_open_loop(battery, window, float(soc_at[p.rest_before]))
+        out.append(LagWindow.on_grid(window, v0, soc))
+    return out
 
 
 def from_full(test: BatterySeries, notes: list[str], label: str) -> BatterySeries:
@@ -460,7 +544,7 @@ def simulate_open_loop(
     """:func:`simulate_voltage`'s voltage (V) and the model's SoC at every sample."""
     model = battery.thevenin_model()
     x = model.rested_state(soc0)
-    z = 0.0  # the surface lag (0 without one)
+    z = model.surface_rest()  # the surface lag's modes (none without one)
     out = np.empty(series.t_s.size)
     soc = np.empty(series.t_s.size)
     temps = series.temperature_c
@@ -468,12 +552,12 @@ def simulate_open_loop(
         temp = None if math.isnan(temps[k]) else float(temps[k])
         if k:
             dt = float(series.t_s[k] - series.t_s[k - 1])
+            z = model.surface_step(z, float(series.current_a[k - 1]), dt, float(x[0]))
             x = model.step(x, float(series.current_a[k - 1]), dt, temp)
-            z = model.surface_step(z, float(series.current_a[k - 1]), dt)
             if soc_track is not None and dt > gap_s:
                 x[0] = soc_track[k]
         soc[k] = x[0]
-        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp, z)
+        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp, sum(z))
     return out, soc
 
 

@@ -36,9 +36,10 @@ R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`Par
 so is the optional OCV shift with temperature: OCV(SoC, T) = OCV(SoC) + offset(T, SoC).
 
 Optionally (not in the papers) the OCV is read at the particles' surface SoC, ``SoC - z``, with
-``z`` a first-order lag of the current (:class:`SurfaceLag`): under load the surface empties
-ahead of the mean, and where the OCV bends (LFP's knee near full) the voltage follows the
-surface within minutes while the mean SoC takes tens of minutes. ``z`` is driven by the current
+``z`` a sum of first-order lags of the current (:class:`SurfaceLag`, one per electrode's
+diffusion): under load the surface empties ahead of the mean, and where the OCV bends (LFP's
+knee near full, the graphite's stage bends below it) the voltage follows the surface within
+seconds to minutes while the mean SoC takes tens of minutes. ``z`` is driven by the current
 alone, so the filters carry it beside their state, not in it (a state without noise would make
 their covariance singular).
 """
@@ -98,23 +99,53 @@ class KineticParams:
 
 @dataclass(frozen=True)
 class SurfaceLag:
-    """The surface SoC's lag behind the mean SoC (one diffusion mode; not in the papers)::
+    """The particles' surface SoC's lag behind the mean SoC (not in the papers):
+    ``z = z_1 + ... + z_n``, one first-order lag per diffusion mode::
 
-        dz/dt = (g I - z) / tau,   OCV read at SoC - z
-        z <- a z + (1 - a) g I,    a = exp(-dt / tau)   (exact for I held over the step)
+        dz_j/dt = (g_j(SoC) I - z_j) / tau_j,   OCV read at SoC - z
+        z_j <- a_j z_j + (1 - a_j) g_j(SoC) I,   a_j = exp(-dt / tau_j)   (exact for I held)
+        g_j(SoC) = g_j where SoC <= soc_max_j, else 0
+
+    One mode per electrode that shapes the OCV: in a LFP/graphite cell the cathode's small
+    particles (tau ~ R^2 / 30 D: 14 s for PyBaMM's Prada2013 LFP) make the knee near full,
+    where the graphite sits on a flat stage and its own, slower lag (278 s) reads nothing; below
+    it the graphite's stage bends take over. ``soc_max_j`` is where a mode starts to read
+    (``identification/surface.py`` fits the first mode on the knee, the second below it).
 
     Attributes:
-        gain_soc_per_a: g, the surface's steady offset per ampere of discharge (SoC / A).
-        tau_s: tau, seconds.
+        gain_soc_per_a: g_j, each mode's steady surface offset per ampere of discharge (SoC / A).
+        tau_s: tau_j, seconds, one per gain.
+        soc_max: the SoC above which mode j is not driven (1.0: everywhere), one per gain.
     """
 
-    gain_soc_per_a: float
-    tau_s: float
+    gain_soc_per_a: tuple[float, ...]
+    tau_s: tuple[float, ...]
+    soc_max: tuple[float, ...]
 
-    def step(self, z_soc: float, current_a: float, dt_s: float) -> float:
-        """``z`` after ``dt_s`` seconds of ``current_a`` (discharge positive)."""
-        a = math.exp(-dt_s / self.tau_s)
-        return a * z_soc + (1.0 - a) * self.gain_soc_per_a * current_a
+    def __post_init__(self) -> None:
+        n = len(self.gain_soc_per_a)
+        if not n or len(self.tau_s) != n or len(self.soc_max) != n:
+            raise ValueError(
+                f"SurfaceLag needs one tau and one soc_max per gain (at least one mode), got "
+                f"{n} gains, {len(self.tau_s)} taus, {len(self.soc_max)} soc_max"
+            )
+
+    @property
+    def n_modes(self) -> int:
+        return len(self.tau_s)
+
+    def step(
+        self, z_modes: tuple[float, ...], current_a: float, dt_s: float, soc: float
+    ) -> tuple[float, ...]:
+        """Each mode's ``z_j`` after ``dt_s`` seconds of ``current_a`` (discharge positive)
+        from a pack at ``soc`` (the step's start)."""
+        out = []
+        modes = zip(z_modes, self.gain_soc_per_a, self.tau_s, self.soc_max, strict=True)
+        for z, g, tau, soc_max in modes:
+            a = math.exp(-dt_s / tau)
+            drive = g * current_a if soc <= soc_max else 0.0
+            out.append(a * z + (1.0 - a) * drive)
+        return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -191,10 +222,18 @@ class TheveninModel:
         r = b.r_ohm.at(soc, temperature_c)
         return r, r * b.c_f.at(soc, temperature_c)
 
-    def surface_step(self, z_soc: float, current_a: float, dt_s: float) -> float:
-        """The surface lag ``z`` (SoC) after the step; 0 without a :class:`SurfaceLag`."""
+    def surface_rest(self) -> tuple[float, ...]:
+        """The lag's modes of a pack at rest (all 0; none without a :class:`SurfaceLag`)."""
         lag = self.params.surface_lag
-        return 0.0 if lag is None else lag.step(z_soc, current_a, dt_s)
+        return () if lag is None else (0.0,) * lag.n_modes
+
+    def surface_step(
+        self, z_modes: tuple[float, ...], current_a: float, dt_s: float, soc: float
+    ) -> tuple[float, ...]:
+        """The lag's modes after the step from ``soc`` (:meth:`SurfaceLag.step`); their sum is
+        the ``z_soc`` the voltage functions take."""
+        lag = self.params.surface_lag
+        return () if lag is None else lag.step(z_modes, current_a, dt_s, soc)
 
     # -- dynamics ----------------------------------------------------------------------------
     def step(
