@@ -14,7 +14,7 @@ papers report:
    identified with a rate test (Butler-Volmer drop, saturating fastest branch) covers the rate
    test's currents: both bundled files set ``filters.hybrid.update_c_rate_max`` to its top
    rate, 6 C (the SLA model follows the field runs within 21-26 mV, the LFP one with its
-   surface lag within 40-60 mV, with ``r_per_a`` 0.1 V/A; README "Accuracy": on LFP's cold
+   two-mode surface lag within 40-46 mV, with ``r_per_a`` 0.1 V/A; README "Accuracy": on LFP's cold
    run, a start at full under 9 A, the updates under load hold the SoC in the knee, where the
    voltage tells it, before a light-load update with a wide prior can move it onto the plateau).
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current

@@ -275,7 +275,8 @@ def identify(
     if shape_ocv is None:
         # Only where this test's OCV has the bends' shape (a slow discharge, or the rests
         # alone): another test's table is its rests, straight between them.
-        extras = [(rate_test, []), (load_test, notes)]  # the rate test's start: rate_test_fits
+        # The rate test's start is reported by rate_test_fits, the load test's here.
+        extras = [(rate_test, "rate test", []), (load_test, "load test", notes)]
         battery = with_surface_lag(battery, test, pulses, soc_at, extras, notes)
     rest_points = [
         (float(soc_at[p.rest_before]), rested_voltage(test, p.rest_before)) for p in pulses
@@ -306,21 +307,21 @@ def with_surface_lag(
     test: BatterySeries,
     pulses: list[Pulse],
     soc_at: np.ndarray,
-    extras: list[tuple[BatterySeries | None, list[str]]],
+    extras: list[tuple[BatterySeries | None, str, list[str]]],
     notes: list[str],
 ) -> BatteryParams:
     """``battery`` with the surface lag fitted (``surface.py``): a first mode on the pulses of
     ``test`` whose onset crosses a bend (the knee), a second on the windows below the knee of
-    ``test`` and of each other test in ``extras`` (a rate test, a load test; starting full like
-    ``test``, from_full's notes to the list given with it) that cross a bend, driven only
-    below the knee's end."""
+    ``test`` and of each other test in ``extras`` ((test or None, its label, the list its
+    from_full notes go to): a rate test, a load test, starting full like ``test``) that cross a
+    bend, driven only below the knee's end."""
     ocv = battery.ocv_curve()
     knee = [p for p in pulses if ocv_bend_v(ocv, onset_soc(test, p, soc_at)) > ONSET_BEND_V]
     knee_end = min((float(soc_at[p.rest_end]) for p in knee), default=1.0)
     below = [(test, [p for p in pulses if p not in knee], soc_at)]
-    for extra, extra_notes in extras:
+    for extra, label, extra_notes in extras:
         if extra is not None:
-            extra = from_full(extra, extra_notes, "load test")
+            extra = from_full(extra, extra_notes, label)
             extra_soc = 1.0 - charge_removed_ah(extra) / battery.capacity_ah
             below.append((extra, segment_pulses(extra), extra_soc))
     below_windows = [

@@ -118,18 +118,16 @@ def fit_surface_lag(ocv: OcvCurve, stages: Sequence[LagStage]) -> SurfaceLagFit:
             rmses.append((math.nan, math.nan))
             flags.append(False)
             continue
-        held = [
-            w.v0 - ocv.ocv_array(w.soc)
-            for w in stage.windows  # the model's voltage less its OCV term
-        ]
+        # Per window: the model's voltage less its OCV term, and the kept modes' z (held).
+        base = [w.v0 - ocv.ocv_array(w.soc) for w in stage.windows]
         z_held = [
             sum((mode_path(w.current_a, w.soc, *m) for m in kept), np.zeros(w.soc.size))
             for w in stage.windows
         ]
 
-        def residual(p: np.ndarray, stage: LagStage = stage, held=held, z_held=z_held):
+        def residual(p: np.ndarray, stage: LagStage = stage, base=base, z_held=z_held):
             out = []
-            for w, b, z0 in zip(stage.windows, held, z_held, strict=True):
+            for w, b, z0 in zip(stage.windows, base, z_held, strict=True):
                 z = z0
                 if p.size:
                     z = z0 + mode_path(w.current_a, w.soc, *np.exp(p), stage.soc_max)
