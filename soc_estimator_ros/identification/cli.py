@@ -218,7 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--load-test",
         type=Path,
         help="load test (steps at a heavy load, long rests) at the reference temperature: "
-        "its windows join the surface lag's fit",
+        "its windows join the surface lag's fit (needs --rate-test: the heavy steps need the "
+        "kinetic drop)",
     )
     ap.add_argument("--template", type=Path, help="file to take non-identified values from")
     add_recording_arguments(ap)

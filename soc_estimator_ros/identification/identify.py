@@ -275,6 +275,11 @@ def identify(
     if shape_ocv is None:
         # Only where this test's OCV has the bends' shape (a slow discharge, or the rests
         # alone): another test's table is its rests, straight between them.
+        if load_test is not None and rate_test is None:
+            notes.append(
+                "load test without a rate test: the 2RC without the rate test's kinetics misses "
+                "its 3 C steps by tens of mV (LFP: 60 mV), more than any lag mode explains"
+            )
         # The rate test's start is reported by rate_test_fits, the load test's here.
         extras = [(rate_test, "rate test", []), (load_test, "load test", notes)]
         battery = with_surface_lag(battery, test, pulses, soc_at, extras, notes)
