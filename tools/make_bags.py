@@ -187,14 +187,19 @@ def run_segments(sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, ta
 
 
 # -- profiles -------------------------------------------------------------------------------
+def step_segments(current_a: float, step_s: float, n_steps: int) -> list[tuple[float, float]]:
+    """A 10-min rest, then ``n_steps`` steps of ``current_a`` for ``step_s`` with 1-h rests."""
+    segs = [(600.0, 0.0)]
+    for _ in range(n_steps):
+        segs += [(step_s, current_a), (3600.0, 0.0)]
+    return segs
+
+
 def pulse_test_segments(pack: Pack) -> list[tuple[float, float]]:
     """Seed 000 §2.1: rest, then 30-min pulses of ~10 % SoC each with 1-h rests."""
     current = 0.2 * pack.pack_capacity_ah  # 10 % in 30 min (the paper's 13.5 / 12 ohm loads)
     n_pulses = 6 if pack.chemistry == "sla" else 8  # to 40 % (SLA) and 20 % (LFP)
-    segs = [(600.0, 0.0)]
-    for _ in range(n_pulses):
-        segs += [(1800.0, current), (3600.0, 0.0)]
-    return segs
+    return step_segments(current, 1800.0, n_pulses)
 
 
 #: Rate test pulse currents, in C (pack capacity per hour): the field runs' 0.1-7 C span.
@@ -234,14 +239,9 @@ def load_test_segments(pack: Pack) -> list[tuple[float, float]]:
     0.2 C pulse test nor the rate test's 5-s pulses excite; ``soc_identify --load-test`` fits
     the surface lag's modes on it.
     """
-    # To 40 % (SLA) and 30 % (LFP: at 3 C the cell collapses through the solver's 1.5 V event
-    # near 22 %, its particles' surface full).
-    n_steps = 6 if pack.chemistry == "sla" else 7
-    duration = 0.1 * 3600.0 / LOAD_TEST_C
-    segs = [(600.0, 0.0)]
-    for _ in range(n_steps):
-        segs += [(duration, LOAD_TEST_C * pack.pack_capacity_ah), (3600.0, 0.0)]
-    return segs
+    # To 30 % (LFP, the only pack with one: at 3 C the cell collapses through the solver's 1.5 V
+    # event near 22 %, its particles' surface full).
+    return step_segments(LOAD_TEST_C * pack.pack_capacity_ah, 0.1 * 3600.0 / LOAD_TEST_C, 7)
 
 
 def mission(rng: np.random.Generator, pack: Pack):
