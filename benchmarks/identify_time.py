@@ -1,5 +1,6 @@
 """Wall time of identifying each bundled pulse test (alone, and with the rate and load tests at
-its temperature, the way config/*.yaml were made at 25 degC).
+its temperature, the way config/*.yaml were made at 25 degC), the whole of it as
+``soc_identify`` does it (``identify_tests``: the fits, the surface lag, the model error).
 
 Target (issue "Parameter identification"): <= 10 s per pulse test. Prints numbers, asserts
 nothing. With ``--real-data DIR`` (default ``../shared/real-data`` when present) also the
@@ -20,8 +21,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from soc_estimator_ros.bag_io import read_battery_bag, read_recording  # noqa: E402
-from soc_estimator_ros.identification.identify import identify  # noqa: E402
+from soc_estimator_ros.identification.cli import identify_tests  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
+
+
+def identify(test, template, slow=None, rate_test=None, load_test=None):
+    """One test at one temperature, as soc_identify identifies it; its result."""
+    rates = None if rate_test is None else [rate_test]
+    _, (res,) = identify_tests([test], None, template, None, slow, None, rates, load_test)
+    return res
 
 
 def timed(label: str, run) -> None:

@@ -17,7 +17,9 @@ currents at each SoC level), R0 becomes the ohmic part and the current-dependent
 is added (``kinetics.py``). With ``--load-test`` (one, at the reference temperature: 10 % steps
 at the robot's heavy load with long rests), its windows join the surface lag's fit (``surface.py``).
 Everything not identified (name, limits, filter tunings) comes from ``--template`` (default:
-the bundled file of the chemistry), so regenerating a bundled file keeps its tunings.
+the bundled file of the chemistry), so regenerating a bundled file keeps its tunings; but one:
+``filters.hybrid.bias_std_v``, the size of the hybrid's model-error state, is the identified
+model's own voltage error on the reference temperature's tests (``model_error.py``).
 """
 
 from __future__ import annotations
@@ -40,7 +42,14 @@ from ..params import (
     battery_params_to_dict,
     load_battery_params,
 )
-from .identify import IdentificationResult, identify, over_temperature, test_temperature_c
+from .identify import (
+    IdentificationResult,
+    counted,
+    identify,
+    over_temperature,
+    test_temperature_c,
+    with_model_error,
+)
 from .segment import IdentificationError
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
@@ -93,7 +102,7 @@ def identify_tests(
         )
         if temperatures_c is not None:
             res.temperature_c = temperatures_c[0]
-        return res.battery, [res]
+        return _with_model_error(res.battery, res, rates[0], load_test, progress), [res]
     temps = temperatures_c or [test_temperature_c(t) for t in tests]
     if any(math.isnan(t) for t in temps):
         raise IdentificationError(
@@ -121,7 +130,29 @@ def identify_tests(
             res.notes.append(f"capacity of the {temps[ref]:.1f} degC test used")
         res.temperature_c = temps[n]
         results.append(res)
-    return over_temperature(results, ref), results
+    battery = over_temperature(results, ref)
+    return _with_model_error(battery, first, rates[ref], load_test, progress), results
+
+
+def _with_model_error(
+    battery: BatteryParams,
+    reference: IdentificationResult,
+    rate_test: BatterySeries | None,
+    load_test: BatterySeries | None,
+    progress,
+) -> BatteryParams:
+    """``battery`` with the hybrid's ``bias_std_v`` measured on the reference temperature's
+    tests (``model_error.py``): its pulse test as fitted, its rate test and the load test, both
+    from full; noted on ``reference``."""
+    if progress:
+        progress("model error over the reference temperature's tests")
+    assert reference.test is not None and reference.soc_track is not None
+    tests = [(reference.test, reference.soc_track)]
+    for extra, label in ((rate_test, "rate test"), (load_test, "load test")):
+        if extra is not None:
+            # from_full's notes on these tests are already in the report (identify)
+            tests.append(counted(extra, battery.capacity_ah, [], label))
+    return with_model_error(battery, tests, reference.notes)
 
 
 def report(result: IdentificationResult) -> str:

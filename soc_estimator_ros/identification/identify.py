@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..bag_io import BatterySeries
+from ..estimators.hybrid import Hybrid
 from ..models.ocv import OcvCurve
 from ..models.rc_saft import RcModelParams
 from ..models.tables import ParamTable
@@ -26,6 +27,7 @@ from .fit import (
     onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
+from .model_error import model_error, residual_on_grid, with_bias_std
 from .segment import IdentificationError, Pulse, segment_pulses, start_after_last_charge
 from .surface import MODE_GAIN, LagStage, LagWindow, fit_surface_lag
 
@@ -326,8 +328,7 @@ def with_surface_lag(
     below = [(test, [p for p in pulses if p not in knee], soc_at)]
     for extra, label, extra_notes in extras:
         if extra is not None:
-            extra = from_full(extra, extra_notes, label)
-            extra_soc = 1.0 - charge_removed_ah(extra) / battery.capacity_ah
+            extra, extra_soc = counted(extra, battery.capacity_ah, extra_notes, label)
             below.append((extra, segment_pulses(extra), extra_soc))
     below_windows = [
         w
@@ -406,6 +407,38 @@ def from_full(test: BatterySeries, notes: list[str], label: str) -> BatterySerie
         )
         test = test.window(first)
     return offset_corrected(test, notes, label)
+
+
+def counted(
+    test: BatterySeries, capacity_ah: float, notes: list[str], label: str
+) -> tuple[BatterySeries, np.ndarray]:
+    """A test from full (:func:`from_full`) and its SoC counted from there (1 at its start)."""
+    test = from_full(test, notes, label)
+    return test, 1.0 - charge_removed_ah(test) / capacity_ah
+
+
+def with_model_error(
+    battery: BatteryParams, tests: list[tuple[BatterySeries, np.ndarray]], notes: list[str]
+) -> BatteryParams:
+    """``battery`` with the hybrid's ``bias_std_v`` measured as its own model's voltage error
+    over ``tests`` (at the reference temperature, each from full with its counted SoC):
+    ``model_error.py``. When it cannot be measured the template's value stays (noted)."""
+    tuning = {**Hybrid.default_tuning, **battery.filters.get("hybrid", {})}
+    residuals = []
+    for test, soc in tests:
+        v_model, _ = simulate_open_loop(battery, test, float(soc[0]), soc, gap_s=0.0)
+        residuals.append(residual_on_grid(battery, test, soc, v_model, tuning))
+    try:
+        error = model_error(residuals)
+    except IdentificationError as exc:
+        notes.append(f"{exc}: the template's filters.hybrid.bias_std_v kept")
+        return battery
+    notes.append(
+        f"model error (the SoC imposed) over {len(tests)} test(s), {error.seconds} s from a "
+        f"load to {tuning['rest_min_s']:.0f} s of rest: {1000 * error.rms_v:.1f} mV RMS "
+        "(filters.hybrid.bias_std_v)"
+    )
+    return with_bias_std(battery, error)
 
 
 def rate_test_fits(
