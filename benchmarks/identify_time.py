@@ -25,7 +25,7 @@ from soc_estimator_ros.identification.cli import identify_tests  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
 
 
-def identify(test, template, slow=None, rate_test=None, load_test=None):
+def identify_one(test, template, slow=None, rate_test=None, load_test=None):
     """One test at one temperature, as soc_identify identifies it; its result."""
     rates = None if rate_test is None else [rate_test]
     _, (res,) = identify_tests([test], None, template, None, slow, None, rates, load_test)
@@ -50,7 +50,7 @@ def main() -> int:
         slow = read_battery_bag(ROOT / "bags" / f"{chem}_slow_discharge", reference_topic=None)
         timed(
             f"{chem}_pulse_test + slow discharge",
-            lambda t=test, tp=template, sl=slow: identify(t, tp, slow=sl),
+            lambda t=test, tp=template, sl=slow: identify_one(t, tp, slow=sl),
         )
         # As the bundled file was made at 25 degC: with the rate test (and the load test).
         rate = read_battery_bag(ROOT / "bags" / f"{chem}_rate_test", reference_topic=None)
@@ -58,7 +58,7 @@ def main() -> int:
         load = read_battery_bag(load_bag, reference_topic=None) if load_bag.exists() else None
         timed(
             f"  + rate test{' + load test' if load is not None else ''}",
-            lambda t=test, tp=template, sl=slow, r=rate, lt=load: identify(
+            lambda t=test, tp=template, sl=slow, r=rate, lt=load: identify_one(
                 t, tp, slow=sl, rate_test=r, load_test=lt
             ),
         )
@@ -68,7 +68,7 @@ def main() -> int:
         for temp in ("25C", "0C"):
             path = args.real_data / f"panasonic18650pf_{temp}_HPPC.csv"
             test = replace(read_recording(path), reference_capacity_ah=2.9)
-            timed(f"panasonic18650pf_{temp}_HPPC", lambda t=test, tp=template: identify(t, tp))
+            timed(f"panasonic18650pf_{temp}_HPPC", lambda t=test, tp=template: identify_one(t, tp))
     else:
         print(f"(no real data in {args.real_data}: the HPPC tests are skipped)")
     print("(reading the inputs is not timed)")

@@ -27,7 +27,7 @@ from .fit import (
     onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
-from .model_error import model_error, residual_on_grid, with_bias_std
+from .model_error import pooled_rms, residual_on_grid, with_bias_std
 from .segment import IdentificationError, Pulse, segment_pulses, start_after_last_charge
 from .surface import MODE_GAIN, LagStage, LagWindow, fit_surface_lag
 
@@ -429,7 +429,7 @@ def with_model_error(
         v_model, _ = simulate_open_loop(battery, test, float(soc[0]), soc, gap_s=0.0)
         residuals.append(residual_on_grid(battery, test, soc, v_model, tuning))
     try:
-        error = model_error(residuals)
+        error = pooled_rms(residuals)
     except IdentificationError as exc:
         notes.append(f"{exc}: the template's filters.hybrid.bias_std_v kept")
         return battery

@@ -18,9 +18,9 @@ bias must carry as much as a swing.
 Only the tests at the reference temperature (the one nearest 25 degC) count. A cold cell's
 error is larger but not a bias: the NCR18650PF's 2RC misses its 0.6 degC HPPC by 29.5 mV RMS
 (its 25.8 degC one by 7.3 mV), an error that changes sign within 5 minutes of each pulse
-(autocovariance negative from 300 s on); a bias state that size, per temperature, let the
-hybrid take 20-75 minutes instead of 4 to come within 2 % from a wrong start at 0 degC
-(README "Accuracy").
+(autocovariance negative from 300 s on); a bias state that size at 0 degC (per temperature,
+with its fitted 2-min correlation time) let the hybrid take 20-75 minutes instead of 4 to come
+within 2 % from a wrong start on the 0 degC drive cycles (README "Identification").
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ def residual_on_grid(
     return grid.measured_v - grid.v0, in_use
 
 
-def model_error(residuals: Sequence[tuple[np.ndarray, np.ndarray]]) -> ModelError:
+def pooled_rms(residuals: Sequence[tuple[np.ndarray, np.ndarray]]) -> ModelError:
     """The RMS of :func:`residual_on_grid`'s residuals over their masks, pooled."""
     seconds = int(sum(np.count_nonzero(m) for _, m in residuals))
     if seconds < MIN_SECONDS:
