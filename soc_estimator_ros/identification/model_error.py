@@ -64,7 +64,7 @@ def residual_on_grid(
     """
     if test.t_s.size < 2:
         raise IdentificationError("a test for the model error needs two samples or more")
-    grid = LagWindow.on_grid(replace(test, t_s=test.t_s - test.t_s[0]), v_model, soc)
+    grid = LagWindow.on_grid(test.window(0), v_model, soc)  # on_grid takes time from 0
     # The hybrid's rest test: the current low-passed (exactly, per 1-s step), then held light.
     a = math.exp(-GRID_S / float(tuning["rest_filter_tau_s"]))
     current_lp_a = lfilter([1.0 - a], [1.0, -a], grid.current_a)
