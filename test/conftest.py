@@ -7,9 +7,12 @@ nodes never hear each other; ``SOC_TEST_ROS_DOMAIN_ID`` pins the id when needed.
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 import zlib
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -57,3 +60,14 @@ def bag_path(name: str) -> Path:
     if not (path / "metadata.yaml").is_file():
         pytest.skip(f"bundled bag {name!r} not present in {BAGS_DIR}")
     return path
+
+
+def load_benchmark(name: str) -> ModuleType:
+    """A script of ``benchmarks/`` as a module (they are scripts, not a package)."""
+    path = REPO_ROOT / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None, path
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # as an import does: a dataclass there looks its module up
+    spec.loader.exec_module(module)
+    return module

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_benchmark
 from filterpy.kalman import KalmanFilter
 
 from soc_estimator_ros.estimators import (
@@ -309,17 +310,6 @@ def test_batched_ukf_follows_filterpy_s_ukf_over_a_long_run() -> None:
     assert np.allclose(ours.x, ref.x, rtol=1e-9, atol=1e-12)
     assert np.allclose(ours.P, ref.P, rtol=1e-9, atol=1e-18)
     assert ours.P[0, 0] < 0.1**2  # the run did update: the comparison is not of two priors
-
-
-def load_benchmark(name: str):
-    """A script of benchmarks/ as a module (they are scripts, not a package)."""
-    import importlib.util
-
-    path = CONFIG_DIR.parent / "benchmarks" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_the_ukf_floor_benchmark_computes_what_t2rc_ukf_computes() -> None:

@@ -6,6 +6,7 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
 
     python tools/make_bags.py                 # every bag into bags/
     python tools/make_bags.py --only sla_pulse_test --jobs 1
+    python tools/make_bags.py --dev --out /tmp/missions   # the unbundled dev missions
 
 Packs (bags/README.md): 12 V 5 Ah SLA = 6 cells of PyBaMM's full lead-acid model
 (``lead_acid.Full``, Sulzer2019: 21.75 Ah at C/20) with the current scaled by 21.75/5;
@@ -519,6 +520,20 @@ SPECS = [
     ),
 ]
 
+#: Not bundled (``--dev``, into a directory of your own): seeder missions from full to 20 %
+#: with seeds apart from the field runs', on which ``benchmarks/table_transfer.py`` fits the
+#: 2RC's tables to see whether they carry over to the field runs (README "Identification").
+DEV_SPECS = [
+    BagSpec(
+        f"lfp_mission_{seed}",
+        "lfp",
+        "field_run",
+        seed,
+        description=f"Seeder mission from full to 20 % (seed {seed}; a dev bag, not bundled).",
+    )
+    for seed in (32, 34, 35, 36, 37, 38)
+]
+
 
 def slow_discharge(pack: Pack, rec: Recording | None) -> float:
     """C/20 from the full state (after a 10-min rest) to the pack cut-off, at 25 degC.
@@ -605,7 +620,7 @@ def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path) -> d
     t, i, v, soc = data["t"], data["i"], data["v"], data["soc"]
     temp = np.full(t.size, data["temp_c"])
     i_m, v_m, temp_m = sensors.measure(rng, i, v, temp)
-    start_ns = EPOCH_NS + SPECS.index(spec) * 86_400 * 1_000_000_000
+    start_ns = EPOCH_NS + (SPECS + DEV_SPECS).index(spec) * 86_400 * 1_000_000_000
     stamps = start_ns + np.round(t * 1e9).astype(np.int64)
     state = (
         battery_state_message(
@@ -697,8 +712,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "bags")
     ap.add_argument("--only", nargs="*", help="bag names to (re)make")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument(
+        "--dev", action="store_true", help="make the dev missions (DEV_SPECS), not the bundled bags"
+    )
     args = ap.parse_args(argv)
-    specs = [s for s in SPECS if not args.only or s.name in args.only]
+    if args.dev and args.out.resolve() == (ROOT / "bags").resolve():
+        ap.error("--dev bags are not bundled: give --out a directory outside bags/")
+    pool_specs = DEV_SPECS if args.dev else SPECS
+    specs = [s for s in pool_specs if not args.only or s.name in args.only]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         caps = dict(zip(PACKS, pool.map(reference_capacity_ah, PACKS.values()), strict=True))
         for chem, cap in caps.items():
