@@ -7,6 +7,9 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
     python tools/make_bags.py                 # every bag into bags/
     python tools/make_bags.py --only sla_pulse_test --jobs 1
     python tools/make_bags.py --dev --out /tmp/missions   # the unbundled dev missions
+    python tools/make_bags.py --graphite-diffusivity-x 10 --out /tmp/fast_graphite \
+        --only lfp_pulse_test lfp_slow_discharge lfp_rate_test lfp_load_test \
+        lfp_field_run_1_full_rest lfp_field_run_2_partial   # a dev pack (README "Identification")
 
 Packs (bags/README.md): 12 V 5 Ah SLA = 6 cells of PyBaMM's full lead-acid model
 (``lead_acid.Full``, Sulzer2019: 21.75 Ah at C/20) with the current scaled by 21.75/5;
@@ -30,7 +33,7 @@ import math
 import shutil
 import sys
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +66,9 @@ class Pack:
     soc_limit: float  # lowest SoC a run goes to
     technology: int
     serial: str
+    #: Dev only (``--graphite-diffusivity-x``): the LFP cell's graphite particle diffusivity
+    #: times this, to see what the graphite's slow diffusion does to the identified model.
+    graphite_diffusivity_x: float = 1.0
 
     @property
     def current_scale(self) -> float:
@@ -96,6 +102,9 @@ class PackSim:
         else:
             model = pybamm.lithium_ion.SPMe()
             pv = pybamm.ParameterValues("Prada2013")
+            if pack.graphite_diffusivity_x != 1.0:
+                key = "Negative particle diffusivity [m2.s-1]"
+                pv[key] = pv[key] * pack.graphite_diffusivity_x
             pv["Lower voltage cut-off [V]"] = 2.0
             pv = pv.set_initial_state(1.0, inplace=False)  # 100 %: OCV at the 3.6 V limit
             # Solver events only (set after the initial state, which uses 2.0-3.6 V): a cold
@@ -569,8 +578,7 @@ def reference_capacity_ah(pack: Pack) -> float:
     return slow_discharge(pack, None)
 
 
-def simulate_bag(spec: BagSpec, capacity_ah: float) -> dict:
-    pack = PACKS[spec.chemistry]
+def simulate_bag(spec: BagSpec, capacity_ah: float, pack: Pack) -> dict:
     rng = np.random.default_rng(spec.seed)
     sim = PackSim(pack, spec.temp_c)
     rec = Recording()
@@ -613,8 +621,7 @@ def simulate_bag(spec: BagSpec, capacity_ah: float) -> dict:
     return {"t": t, "i": i, "v": v, "soc": soc_ref, "temp_c": spec.temp_c}
 
 
-def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path) -> dict:
-    pack = PACKS[spec.chemistry]
+def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack: Pack) -> dict:
     rng = np.random.default_rng(spec.seed + 1000)
     sensors = SensorModel.draw(rng)
     t, i, v, soc = data["t"], data["i"], data["v"], data["soc"]
@@ -676,6 +683,10 @@ def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path) -> d
         "sensors": sensors.as_dict(),
         "description": spec.description,
     }
+    if pack.graphite_diffusivity_x != 1.0:
+        meta["description"] += (
+            f" Dev pack: the graphite's diffusivity x{pack.graphite_diffusivity_x:g}."
+        )
     (bag / "bag.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     (bag / "README.md").write_text(bag_readme(meta))
     return meta
@@ -702,9 +713,9 @@ def bag_readme(meta: dict) -> str:
 """
 
 
-def build(spec: BagSpec, capacity_ah: float, out_dir: str) -> dict:
-    data = simulate_bag(spec, capacity_ah)
-    return write_bag(spec, data, capacity_ah, Path(out_dir))
+def build(spec: BagSpec, capacity_ah: float, out_dir: str, pack: Pack) -> dict:
+    data = simulate_bag(spec, capacity_ah, pack)
+    return write_bag(spec, data, capacity_ah, Path(out_dir), pack)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -715,16 +726,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--dev", action="store_true", help="make the dev missions (DEV_SPECS), not the bundled bags"
     )
+    ap.add_argument(
+        "--graphite-diffusivity-x",
+        type=float,
+        default=1.0,
+        help="dev: the LFP cell's graphite diffusivity times this (not for bags/)",
+    )
     args = ap.parse_args(argv)
-    if args.dev and args.out.resolve() == (ROOT / "bags").resolve():
-        ap.error("--dev bags are not bundled: give --out a directory outside bags/")
+    dev = args.dev or args.graphite_diffusivity_x != 1.0
+    if dev and args.out.resolve() == (ROOT / "bags").resolve():
+        ap.error("dev bags are not bundled: give --out a directory outside bags/")
+    packs = dict(PACKS)
+    packs["lfp"] = replace(packs["lfp"], graphite_diffusivity_x=args.graphite_diffusivity_x)
     pool_specs = DEV_SPECS if args.dev else SPECS
     specs = [s for s in pool_specs if not args.only or s.name in args.only]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        caps = dict(zip(PACKS, pool.map(reference_capacity_ah, PACKS.values()), strict=True))
+        caps = dict(zip(packs, pool.map(reference_capacity_ah, packs.values()), strict=True))
         for chem, cap in caps.items():
             print(f"{chem}: reference capacity {cap:.4f} Ah (C/20 to cut-off, 25 degC)")
-        futures = [pool.submit(build, s, caps[s.chemistry], str(args.out)) for s in specs]
+        futures = [
+            pool.submit(build, s, caps[s.chemistry], str(args.out), packs[s.chemistry])
+            for s in specs
+        ]
         for fut in futures:
             m = fut.result()
             print(
