@@ -424,7 +424,7 @@ FIELD_XFAIL = {
     "graphite's slow diffusion: tables that follow one run give another 22-26 mV but miss the "
     "load test by 69 mV, those of the lab tests give the runs 44-66 mV "
     "(benchmarks/table_transfer.py), and with the graphite 10x faster the same identification "
-    "gives runs 1 / 2 27.5 / 16.4 mV (README 'Identification')"
+    "gives the runs 27.7 / 16.5 / 22.7 mV (README 'Identification')"
 }
 
 

@@ -7,9 +7,10 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
     python tools/make_bags.py                 # every bag into bags/
     python tools/make_bags.py --only sla_pulse_test --jobs 1
     python tools/make_bags.py --dev --out /tmp/missions   # the unbundled dev missions
-    python tools/make_bags.py --graphite-diffusivity-x 10 --out /tmp/fast_graphite \
-        --only lfp_pulse_test lfp_slow_discharge lfp_rate_test lfp_load_test \
-        lfp_field_run_1_full_rest lfp_field_run_2_partial   # a dev pack (README "Identification")
+    python tools/make_bags.py --graphite-diffusivity-x 10 --out /tmp/fast_graphite --only \
+        lfp_pulse_test lfp_pulse_test_5c lfp_slow_discharge lfp_rate_test lfp_rate_test_5c \
+        lfp_load_test lfp_field_run_1_full_rest lfp_field_run_2_partial lfp_field_run_3_cold
+        # a dev pack, its graphite diffusing 10x faster (README "Identification")
 
 Packs (bags/README.md): 12 V 5 Ah SLA = 6 cells of PyBaMM's full lead-acid model
 (``lead_acid.Full``, Sulzer2019: 21.75 Ah at C/20) with the current scaled by 21.75/5;
