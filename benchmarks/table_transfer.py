@@ -106,7 +106,7 @@ def prepare(battery: BatteryParams, series: BatterySeries, name: str) -> Prepare
     soc = series.soc_ref
     current = series.current_a
     temps = series.temperature_c
-    temp = [None if math.isnan(x) else float(x) for x in temps]
+    temp = temps.tolist()  # NaN reads as 25 degC in every table, as None does (ParamTable.at)
     dt = np.append(np.diff(series.t_s), 0.0)
     z = np.zeros(soc.size)
     modes = model.surface_rest()
@@ -127,12 +127,11 @@ def prepare(battery: BatteryParams, series: BatterySeries, name: str) -> Prepare
     # The step from sample k to k + 1 reads the branches at the SoC of k and the temperature of
     # k + 1, as simulate_voltage does (models/thevenin.py's step takes the new sample's).
     temps_next = np.append(temps[1:], temps[-1])
-    temp_next = temp[1:] + temp[-1:]
     drive = np.array(
         [
             [
                 b.drive_a(float(s), float(i), t)
-                for s, i, t in zip(soc, current, temp_next, strict=True)
+                for s, i, t in zip(soc, current, temps_next.tolist(), strict=True)
             ]
             for b in th.branches
         ]

@@ -741,8 +741,11 @@ def main(argv: list[str] | None = None) -> int:
     packs["lfp"] = replace(packs["lfp"], graphite_diffusivity_x=args.graphite_diffusivity_x)
     pool_specs = DEV_SPECS if args.dev else SPECS
     specs = [s for s in pool_specs if not args.only or s.name in args.only]
+    chems = sorted({s.chemistry for s in specs})  # the capacities only of the packs made
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        caps = dict(zip(packs, pool.map(reference_capacity_ah, packs.values()), strict=True))
+        caps = dict(
+            zip(chems, pool.map(reference_capacity_ah, [packs[c] for c in chems]), strict=True)
+        )
         for chem, cap in caps.items():
             print(f"{chem}: reference capacity {cap:.4f} Ah (C/20 to cut-off, 25 degC)")
         futures = [
