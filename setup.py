@@ -9,9 +9,9 @@ PACKAGE = "soc_estimator_ros"
 # The one list of executables (installed to lib/soc_estimator_ros/ for `ros2 run`, see
 # setup.cfg); test/test_colcon_build.py checks that each one starts (`--help`).
 CONSOLE_SCRIPTS = [
-    "soc_replay = soc_estimator_ros.replay:main",
+    "soc_replay = soc_estimator_ros.replay.cli:main",
     "soc_identify = soc_estimator_ros.identification.cli:main",
-    "soc_estimator_node = soc_estimator_ros.node:main",
+    "soc_estimator_node = soc_estimator_ros.node.ros_node:main",
 ]
 
 setup(

@@ -20,9 +20,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import read_battery_bag, read_recording  # noqa: E402
 from soc_estimator_ros.identification.cli import identify_tests  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import read_battery_bag, read_recording  # noqa: E402
 
 
 def identify_one(test, template, slow=None, rate_test=None, load_test=None):

@@ -45,12 +45,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag  # noqa: E402
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.estimators.hybrid import Hybrid  # noqa: E402
 from soc_estimator_ros.evaluation import accuracy, run_estimator  # noqa: E402
 from soc_estimator_ros.identification.identify import simulate_voltage  # noqa: E402
 from soc_estimator_ros.params import BatteryParams, load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import BatterySeries, read_battery_bag  # noqa: E402
 
 ADC_NOISE_V = 0.002  # bags/README.md: the voltage channel's white noise
 INITIAL_SOC_STD = 0.1  # as test/test_accuracy.py

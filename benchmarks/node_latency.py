@@ -74,7 +74,7 @@ def main() -> int:
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import BatteryState
 
-    from soc_estimator_ros.live_replay import RELIABLE, state_message
+    from soc_estimator_ros.replay.live import RELIABLE, state_message
 
     ns = f"/bench_{os.getpid()}"
     exe = Path(sys.executable).parent / "soc_estimator_node"

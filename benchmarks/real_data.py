@@ -38,11 +38,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import BatterySeries, read_recording  # noqa: E402
 from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import accuracy, run_estimator  # noqa: E402
 from soc_estimator_ros.identification.cli import identify_tests  # noqa: E402
 from soc_estimator_ros.params import BatteryParams, Limits, load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import BatterySeries, read_recording  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "real-data"
 PANASONIC_REF_AH = 2.9  # soc_ref = 1 + Ah / 2.9 (the data's README)

@@ -19,7 +19,7 @@ from sensor_msgs.msg import BatteryState
 def main() -> int:
     rclpy.init(args=sys.argv)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from soc_estimator_ros.live_replay import RELIABLE
+    from soc_estimator_ros.replay.live import RELIABLE
 
     node = rclpy.create_node("soc_relay")
     pub = node.create_publisher(BatteryState, "battery/soc", RELIABLE)

@@ -21,10 +21,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import read_battery_bag  # noqa: E402
 from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import read_battery_bag  # noqa: E402
 
 FILES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
 

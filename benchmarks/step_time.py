@@ -25,7 +25,7 @@ from soc_estimator_ros.params import load_battery_params  # noqa: E402
 
 def load_input(bag: Path | None, steps: int):
     if bag is not None and bag.exists():
-        from soc_estimator_ros.bag_io import read_battery_bag
+        from soc_estimator_ros.recordings import read_battery_bag
 
         s = read_battery_bag(bag)
         n = min(steps, len(s.t_s))

@@ -33,9 +33,9 @@ from scipy.optimize import least_squares
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag  # noqa: E402
 from soc_estimator_ros.models.tables import ParamTable  # noqa: E402
 from soc_estimator_ros.params import BatteryParams, load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import BatterySeries, read_battery_bag  # noqa: E402
 
 #: The factors' bounds, as a log: the tables move within a decade of the file's either way.
 LOG_BOUND = math.log(10.0)

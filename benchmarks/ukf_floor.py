@@ -26,11 +26,11 @@ from scipy.linalg.lapack import dpotrf
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import read_battery_bag  # noqa: E402
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
 from soc_estimator_ros.models.tables import fast_interp  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import read_battery_bag  # noqa: E402
 
 FILES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
 SHIFT = 100.0  # table k's SoC grid is moved to k * SHIFT; guard points hold its end values

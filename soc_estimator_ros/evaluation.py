@@ -19,34 +19,16 @@ from typing import Protocol
 import numpy as np
 
 from .estimators.base import Estimator
+from .series import EstimateSeries
 
 
 class SampleSeries(Protocol):
-    """What :func:`run_estimator` needs: aligned arrays (``bag_io.BatterySeries`` fits)."""
+    """What :func:`run_estimator` needs: aligned arrays (``series.BatterySeries`` fits)."""
 
     t_s: np.ndarray
     current_a: np.ndarray
     voltage_v: np.ndarray
     temperature_c: np.ndarray
-
-
-@dataclass(frozen=True)
-class EstimateSeries:
-    """An estimator's outputs over a run, one row per input sample."""
-
-    estimator: str
-    t_s: np.ndarray
-    soc: np.ndarray
-    soc_std: np.ndarray
-    voltage_v: np.ndarray
-    voltage_pred_v: np.ndarray
-    current_a: np.ndarray
-    nis: np.ndarray
-    status: tuple[str, ...]
-    innovation_v: np.ndarray
-    x: np.ndarray  # (n, dim_x): the state after each sample
-    p: np.ndarray  # (n, dim_x, dim_x): its covariance
-    state_names: tuple[str, ...]
 
 
 def run_estimator(

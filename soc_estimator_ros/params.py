@@ -2,7 +2,7 @@
 
 One YAML file describes one battery (pack level): chemistry, capacity, limits, the OCV table,
 the Saft RC model, the n-RC Thevenin model as tables over SoC (temperature optional), and the
-default filter tunings. ``config/*.yaml`` are examples; the README documents every key.
+default filter tunings. ``config/*.yaml`` are examples; docs/battery_files.md documents every key.
 
 Every problem in a file raises :class:`ParamFileError` with one message that names the file,
 the key (dotted path), the value found and what was expected, e.g.::
@@ -20,6 +20,7 @@ from typing import Any
 
 import yaml
 
+from .errors import SocEstimatorError
 from .models.ocv import OcvCurve
 from .models.rc_saft import RcModelParams
 from .models.tables import ParamTable
@@ -29,7 +30,7 @@ SCHEMA_VERSION = 1
 CHEMISTRIES = ("sla", "lfp", "li_ion")
 
 
-class ParamFileError(ValueError):
+class ParamFileError(SocEstimatorError, ValueError):
     """A battery parameter file that cannot be used, with the file, key, value and expectation."""
 
     def __init__(self, source: str, key: str, value: Any, expected: str) -> None:
@@ -395,6 +396,9 @@ def load_battery_params(path: str | Path) -> BatteryParams:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ParamFileError(str(p), "<file>", str(exc), "a readable YAML file") from exc
+    except UnicodeDecodeError as exc:
+        shown = f"{exc.reason} at byte {exc.start}"
+        raise ParamFileError(str(p), "<file>", shown, "a UTF-8 text (YAML) file") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -43,13 +43,13 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soc_estimator_ros.bag_io import (  # noqa: E402
+from soc_estimator_ros.recordings import (  # noqa: E402
     REFERENCE_TOPIC,
     STATE_TOPIC,
     battery_state_message,
     write_battery_bag,
 )
-from soc_estimator_ros.bag_io import TECHNOLOGY_BY_CHEMISTRY as TECH  # noqa: E402
+from soc_estimator_ros.recordings import TECHNOLOGY_BY_CHEMISTRY as TECH  # noqa: E402
 
 EPOCH_NS = 1_777_881_600 * 1_000_000_000  # 2026-05-04 08:00:00 UTC, fixed for determinism
 SAMPLE_S = 0.1  # the bridge's 10 Hz

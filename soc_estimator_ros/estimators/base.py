@@ -31,8 +31,8 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy.linalg.lapack import dpotrf
 
-from ..conventions import SECONDS_PER_HOUR
 from ..params import BatteryParams
+from ..units import SECONDS_PER_HOUR
 
 #: A SoC variance past which nothing is known (std 1 for a quantity in [0, 1]); clipping never
 #: grows the variance beyond it.

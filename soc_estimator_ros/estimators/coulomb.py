@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 
-from ..conventions import SECONDS_PER_HOUR
 from ..models.coulomb import coulomb_step
+from ..units import SECONDS_PER_HOUR
 from .base import Estimator
 
 

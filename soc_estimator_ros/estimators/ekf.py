@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from ..conventions import SECONDS_PER_HOUR
 from ..models.coulomb import coulomb_efficiency
 from ..models.thevenin import one_rc_equivalent
+from ..units import SECONDS_PER_HOUR
 from .base import Estimator
 from .filterpy_state import FilterpyState
 

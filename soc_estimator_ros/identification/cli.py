@@ -34,14 +34,16 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..bag_io import BagError, BatterySeries, add_recording_arguments, read_recording
-from ..conventions import CurrentSign
+from ..errors import SocEstimatorError
 from ..params import (
     BatteryParams,
-    ParamFileError,
     battery_params_to_dict,
     load_battery_params,
 )
+from ..recordings import add_recording_arguments, read_recording
+from ..resources import BUNDLED_FILES, bundled_file
+from ..series import BatterySeries
+from ..units import CurrentSign
 from .identify import (
     IdentificationResult,
     counted,
@@ -51,13 +53,6 @@ from .identify import (
     with_model_error,
 )
 from .segment import IdentificationError
-
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
-TEMPLATES = {
-    "sla": "sla_12v5ah.yaml",
-    "lfp": "lfp_12v6ah.yaml",
-    "li_ion": "li_ion_ncr18650pf.yaml",
-}
 
 
 def load_test(
@@ -228,7 +223,7 @@ def plot_fit(path: Path, test: BatterySeries, result: IdentificationResult) -> N
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="soc_identify", description=__doc__.splitlines()[0])
     ap.add_argument("input", type=Path, nargs="+", help="pulse test(s): rosbag2 bag or CSV")
-    ap.add_argument("--chemistry", required=True, choices=sorted(TEMPLATES))
+    ap.add_argument("--chemistry", required=True, choices=sorted(BUNDLED_FILES))
     ap.add_argument("--capacity-ah", type=float, help="pack capacity (default: measured)")
     ap.add_argument("--slow-discharge", type=Path, help="slow discharge (C/20) to the cut-off")
     ap.add_argument(
@@ -263,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     sign = CurrentSign(args.current_sign)
     try:
-        template = load_battery_params(args.template or CONFIG_DIR / TEMPLATES[args.chemistry])
+        template = load_battery_params(args.template or bundled_file(args.chemistry))
         if template.chemistry != args.chemistry:
             raise IdentificationError(
                 f"template {args.template} is {template.chemistry}, not {args.chemistry}"
@@ -287,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
             rate_tests=rate_tests,
             load_test=load_test(args.load_test, args.topic, sign) if args.load_test else None,
         )
-    except (IdentificationError, BagError, ParamFileError) as exc:
+    except SocEstimatorError as exc:
         print(f"soc_identify: error: {exc}", file=sys.stderr)
         return 2
     for result in results:

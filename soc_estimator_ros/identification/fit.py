@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import OptimizeWarning, curve_fit, least_squares, lsq_linear
 
-from ..bag_io import BatterySeries
-from ..conventions import SECONDS_PER_HOUR
 from ..models.ocv import OcvCurve
+from ..series import BatterySeries
+from ..units import SECONDS_PER_HOUR
 from .segment import IdentificationError, Pulse
 
 

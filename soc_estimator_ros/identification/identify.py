@@ -8,13 +8,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..bag_io import BatterySeries
 from ..estimators.hybrid import Hybrid
 from ..models.ocv import OcvCurve
 from ..models.rc_saft import RcModelParams
 from ..models.tables import ParamTable
 from ..models.thevenin import RcBranch, TheveninParams
 from ..params import BatteryParams, OcvTable
+from ..series import BatterySeries
 from .fit import (
     ONSET_BEND_V,
     PulseFit,

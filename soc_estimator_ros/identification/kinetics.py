@@ -23,11 +23,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..bag_io import BatterySeries
-from ..conventions import SECONDS_PER_HOUR
 from ..models.ocv import OcvCurve
 from ..models.tables import ParamTable
 from ..models.thevenin import KineticParams, TheveninModel, TheveninParams
+from ..series import BatterySeries
+from ..units import SECONDS_PER_HOUR
 from .segment import IdentificationError
 
 #: Shortest RC time constant when a rate test is given (its pulses' length, tools/make_bags.py).

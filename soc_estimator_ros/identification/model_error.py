@@ -32,8 +32,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.signal import lfilter
 
-from ..bag_io import BatterySeries
 from ..params import BatteryParams
+from ..series import BatterySeries
 from .segment import IdentificationError
 from .surface import GRID_S, LagWindow
 

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..bag_io import BatterySeries
+from ..errors import SocEstimatorError
+from ..series import BatterySeries
 
 
-class IdentificationError(ValueError):
+class IdentificationError(SocEstimatorError, ValueError):
     """A test the identification cannot use, with what is wrong and the numbers."""
 
 

@@ -36,9 +36,9 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-from ..bag_io import BatterySeries
 from ..models.ocv import OcvCurve
 from ..models.thevenin import SurfaceLag
+from ..series import BatterySeries
 
 GAIN_BOUNDS_SOC_PER_A = (1.0e-5, 0.1)
 #: Up to a third of the 1-h rests of the seed-000 protocol (and of the rate and load tests): a

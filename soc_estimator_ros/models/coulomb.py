@@ -1,6 +1,6 @@
 """Coulomb counting (seed 000 eq. 11; seed 001's CC function).
 
-Core convention (``conventions.py``): current positive while discharging. Then
+Core convention (``units.py``): current positive while discharging. Then
 
     SoC(t + dt) = SoC(t) - eta * I * dt / (3600 * Q_ah)
 
@@ -15,7 +15,7 @@ with Q in ampere-hours the right side needs the 3600 s/h factor.
 
 from __future__ import annotations
 
-from ..conventions import SECONDS_PER_HOUR
+from ..units import SECONDS_PER_HOUR
 
 
 def coulomb_efficiency(current_a: float, efficiency_charge: float) -> float:

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..conventions import SECONDS_PER_HOUR
+from ..units import SECONDS_PER_HOUR
 from .coulomb import coulomb_efficiency
 from .ocv import OcvCurve
 from .tables import ParamTable

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-NS_PER_S = 1_000_000_000
+from ..units import NS_PER_S
 
 
 @dataclass(frozen=True)

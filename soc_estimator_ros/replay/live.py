@@ -1,10 +1,11 @@
 """Replay a recording through a live ``soc_estimator_node`` and record what it publishes.
 
-``soc_replay --live`` runs this: the node (node.py's :class:`SocEstimatorNode`, the same
-class ``ros2 run`` starts) and a link node that publishes the recording's ``BatteryState``
+``soc_replay --live`` runs this: the node (:class:`SocEstimatorNode` of ``node/ros_node.py``,
+the class ``ros2 run`` starts) and a link node that publishes the recording's ``BatteryState``
 samples and ``/clock`` (the node runs on sim time) and subscribes to the node's outputs, both
 in one rclpy context spun from this thread. The result is an ``EstimateSeries`` like the
-offline replay's, so the two can be compared sample for sample.
+offline replay's (one row per input sample; a rejected sample repeats the last estimate), so
+the two can be compared sample for sample.
 
 Pace: lossless lock-step by default (publish a batch, wait until the node has answered every
 sample of it, then the next: as fast as the node keeps up, nothing queued out); with
@@ -52,13 +53,13 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from .bag_io import BatterySeries  # noqa: E402
-from .conventions import ros_current_from_core  # noqa: E402
-from .evaluation import EstimateSeries  # noqa: E402
-from .node import SocEstimatorNode  # noqa: E402
-from .outputs import decode_estimate  # noqa: E402
+from ..messages import bridge_state, decode_estimate  # noqa: E402
+from ..node.ros_messages import battery_state_msg  # noqa: E402
+from ..node.ros_node import SocEstimatorNode  # noqa: E402
+from ..series import BatterySeries, EstimateSeries  # noqa: E402
+from ..tracking import TrackerConfig  # noqa: E402
+from ..units import NS_PER_S, ns_to_stamp  # noqa: E402
 
-NS_PER_S = 1_000_000_000
 RELIABLE = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE
 )
@@ -73,18 +74,17 @@ def state_message(
     present: bool = True,
     serial_number: str = "",
 ) -> BatteryState:
-    """A bridge-like rclpy ``BatteryState``; ``current_a`` in the core's sign (discharge +)."""
-    msg = BatteryState()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), NS_PER_S)
-    msg.header.frame_id = "battery"
-    msg.voltage = float(voltage_v)
-    msg.current = float(ros_current_from_core(current_a))
-    msg.temperature = float(temperature_c)
-    msg.charge = msg.capacity = msg.percentage = float("nan")
-    msg.design_capacity = float(design_capacity_ah)
-    msg.present = present
-    msg.serial_number = serial_number
-    return msg
+    """A bridge's rclpy ``BatteryState`` (``messages.bridge_state``; current in the core's sign)."""
+    fields = bridge_state(
+        stamp_ns,
+        voltage_v,
+        current_a,
+        temperature_c=temperature_c,
+        design_capacity_ah=design_capacity_ah,
+        present=present,
+        serial_number=serial_number,
+    )
+    return battery_state_msg(fields)
 
 
 def series_messages(
@@ -168,11 +168,11 @@ class NodeLink:
 
     def judged(self) -> int:
         """Samples the node's input gate has accepted or rejected so far."""
-        return sum(self.node.gate.counts.values())
+        return sum(self.node.tracker.gate.counts.values())
 
     def publish_clock(self, stamp_ns: int) -> None:
         msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = divmod(int(stamp_ns), NS_PER_S)
+        msg.clock.sec, msg.clock.nanosec = ns_to_stamp(stamp_ns)
         self.clock_pub.publish(msg)
 
     def send(
@@ -234,29 +234,28 @@ def start_node(context: Context, namespace: str, **params: Any) -> SocEstimatorN
 def replay_live(
     series: BatterySeries,
     battery_file: Path,
-    estimator: str,
-    initial_soc: float,
-    initial_soc_std: float,
+    config: TrackerConfig,
     rate: float | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> EstimateSeries:
-    """Every sample of ``series`` through a live node; its outputs as an ``EstimateSeries``.
+) -> tuple[EstimateSeries, str]:
+    """Every sample of ``series`` through a live node; its outputs and the start it used.
 
-    Raises ``RuntimeError`` when the node leaves samples unanswered (it rejects samples its
-    input gate finds absurd: replay such a recording offline to see them).
+    The node starts as ``config`` says (``initial_soc``, its std, the estimator). Raises
+    ``RuntimeError`` when the node does not judge every sample within 30 s of its batch.
     """
     context = Context()
     rclpy.init(context=context)
     try:
         with tempfile.TemporaryDirectory(prefix="soc_live_") as tmp:
             ns = f"/soc_replay_{uuid.uuid4().hex[:8]}"
+            init = config.initial_soc
             node = start_node(
                 context,
                 ns,
                 battery_file=str(battery_file),
-                estimator=estimator,
-                initial_soc=repr(float(initial_soc)),
-                initial_soc_std=float(initial_soc_std),
+                estimator=config.estimator,
+                initial_soc=init if isinstance(init, str) else repr(float(init)),
+                initial_soc_std=float(config.initial_soc_std),
                 input_reliability="reliable",
                 qos_depth=1000,
                 state_file=str(Path(tmp) / "state.yaml"),
@@ -266,8 +265,17 @@ def replay_live(
             try:
                 if not link.wait_matched():
                     raise RuntimeError("the node's topics did not match within 10 s")
-                link.send(series_messages(series), rate=rate, clock=True, progress=progress)
-                return estimates_from(link, series)
+                link.send(
+                    series_messages(series),
+                    expect_outputs=False,
+                    rate=rate,
+                    clock=True,
+                    progress=progress,
+                )
+                used = node.tracker.samples_used
+                if not link.spin_until(lambda: len(link.est) >= used and len(link.soc) >= used):
+                    raise RuntimeError(f"the node published {len(link.est)} of {used} estimates")
+                return estimates_from(link, series), f"as the node: initial_soc={init}"
             finally:
                 link.close()
     finally:
@@ -275,28 +283,39 @@ def replay_live(
 
 
 def estimates_from(link: NodeLink, series: BatterySeries) -> EstimateSeries:
-    """The node's outputs, one per input sample, as an ``EstimateSeries``."""
+    """The node's outputs as an ``EstimateSeries``, one row per input sample (matched by
+    stamp; a sample without an output repeats the previous row, NaN before the first)."""
     rows = [decode_estimate(m) for m in link.est]
     names = tuple(k.removeprefix("x.") for k in rows[0] if k.startswith("x.")) if rows else ()
-    n, d = len(rows), len(names)
-
-    def col(key: str) -> np.ndarray:
-        return np.array([r[key] for r in rows])
-
-    x = np.array([[r[f"x.{a}"] for a in names] for r in rows]).reshape(n, d)
-    p = np.array([[[r[f"P.{a}.{b}"] for b in names] for a in names] for r in rows])
+    n, d = len(series), len(names)
+    by_stamp = {round(r["stamp_s"] * NS_PER_S): r for r in rows}
+    soc, std, v_pred, nis, innov = (np.full(n, np.nan) for _ in range(5))
+    x = np.full((n, d), np.nan)
+    p = np.full((n, d, d), np.nan)
+    status: list[str] = []
+    last = None
+    for k, stamp in enumerate(series.stamp_ns):
+        r = by_stamp.get(int(stamp))
+        status.append("live" if r is not None else "rejected")
+        if r is not None:
+            v_pred[k], innov[k], nis[k] = r["voltage_pred_v"], r["innovation_v"], r["nis"]
+            last = r
+        if last is not None:
+            soc[k], std[k] = last["soc"], last["soc_std"]
+            x[k] = [last[f"x.{a}"] for a in names]
+            p[k] = [[last[f"P.{a}.{b}"] for b in names] for a in names]
     return EstimateSeries(
-        estimator=link.node.estimator.name,
+        estimator=link.node.tracker.estimator.name,
         t_s=np.asarray(series.t_s, dtype=float),
-        soc=col("soc"),
-        soc_std=col("soc_std"),
+        soc=soc,
+        soc_std=std,
         voltage_v=np.asarray(series.voltage_v, dtype=float),
-        voltage_pred_v=col("voltage_pred_v"),
+        voltage_pred_v=v_pred,
         current_a=np.asarray(series.current_a, dtype=float),
-        nis=col("nis"),
-        status=("live",) * n,
-        innovation_v=col("innovation_v"),
+        nis=nis,
+        status=tuple(status),
+        innovation_v=innov,
         x=x,
-        p=p.reshape(n, d, d),
+        p=p,
         state_names=names,
     )

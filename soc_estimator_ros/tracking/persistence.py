@@ -1,4 +1,4 @@
-"""Saving and restoring the node's SoC across restarts (no ROS).
+"""Saving and restoring a tracker's SoC across restarts (no ROS).
 
 The state file is a small YAML mapping::
 
@@ -17,7 +17,10 @@ flushed and ``fsync``-ed, then ``os.replace``-d over the old file, and the direc
 problem). :func:`resume_decision` says whether a saved state may be resumed from at a given
 time: only when it exists, is valid, belongs to the same battery and is younger than
 ``resume_max_age_s``; otherwise it returns the reason, which the node logs before it falls back
-to an OCV initialization.
+to an OCV initialization. A file that exists but cannot be used is set aside
+(:func:`set_aside`: renamed ``<name>.unusable``) so the next start does not meet it again, and
+temporary files a kill left behind during a save are removed at start
+(:func:`remove_stale_temp_files`).
 """
 
 from __future__ import annotations
@@ -32,10 +35,12 @@ from typing import Any
 
 import yaml
 
+from ..errors import SocEstimatorError
+
 FORMAT_VERSION = 1
 
 
-class StateFileError(ValueError):
+class StateFileError(SocEstimatorError, ValueError):
     """A state file that cannot be used, with its path and the problem."""
 
     def __init__(self, path: Path | str, problem: str) -> None:
@@ -88,14 +93,49 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+def _temp_prefix(path: Path) -> str:
+    return f".{path.name}."
+
+
+def remove_stale_temp_files(path: Path | str) -> list[Path]:
+    """Remove the temporary files a kill during :func:`save_state` left beside ``path``.
+
+    Only one writer owns a state file, so at its start every such file is stale. Returns the
+    files removed (those that could not be are left, silently: they are harmless).
+    """
+    p = Path(path).expanduser()
+    removed: list[Path] = []
+    if not p.parent.is_dir():
+        return removed
+    for tmp in p.parent.glob(_temp_prefix(p) + "*.tmp"):
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+            removed.append(tmp)
+    return removed
+
+
+def set_aside(path: Path | str) -> Path | None:
+    """Rename an unusable state file to ``<name>.unusable`` (replacing an older one); returns
+    the new path, or None when the file is absent or cannot be renamed."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        return None
+    target = p.with_name(p.name + ".unusable")
+    try:
+        os.replace(p, target)
+    except OSError:
+        return None
+    return target
+
+
 def save_state(path: Path | str, state: SavedState) -> None:
     """Write ``state`` to ``path`` atomically (creates the directory); ``OSError`` on failure."""
     p = Path(path).expanduser()
     p.parent.mkdir(parents=True, exist_ok=True)
-    text = "# soc_estimator_node state (persistence.py); safe to delete\n" + yaml.safe_dump(
+    text = "# soc_estimator_ros state (tracking/persistence.py); safe to delete\n" + yaml.safe_dump(
         state.as_dict(), sort_keys=False
     )
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(p), suffix=".tmp", dir=p.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
@@ -134,6 +174,8 @@ def load_state(path: Path | str) -> SavedState:
         raise StateFileError(p, "no such file") from exc
     except OSError as exc:
         raise StateFileError(p, f"cannot be read ({exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise StateFileError(p, f"not a text file ({exc.reason} at byte {exc.start})") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -187,7 +229,9 @@ def resume_decision(
     try:
         state = load_state(path)
     except StateFileError as exc:
-        return ResumeDecision(None, f"no usable saved state: {exc}")
+        moved = set_aside(path)
+        note = f"; set aside as {moved}" if moved is not None else ""
+        return ResumeDecision(None, f"no usable saved state: {exc}{note}")
     if state.battery != battery:
         return ResumeDecision(
             None, f"saved state in {path} is for battery {state.battery!r}, not {battery!r}"

@@ -1,4 +1,4 @@
-"""Sign and unit conventions of the estimation core, and the conversions at its edges.
+"""Sign and unit conventions of the package, and the conversions at its edges (one home).
 
 Inside the core, one convention holds everywhere:
 
@@ -45,3 +45,19 @@ def core_current_from_ros(current_ros_a: float) -> float:
 def ros_current_from_core(current_a: float) -> float:
     """Core current (positive while discharging) -> ROS BatteryState current."""
     return -current_a
+
+
+#: Nanoseconds per second: stamps are integer nanoseconds everywhere (exact comparisons; no
+#: float rounding of 1.7e18 ns stamps).
+NS_PER_S = 1_000_000_000
+
+
+def stamp_to_ns(sec: int, nanosec: int) -> int:
+    """A ROS ``builtin_interfaces/Time`` (``sec``, ``nanosec``) as integer nanoseconds."""
+    return int(sec) * NS_PER_S + int(nanosec)
+
+
+def ns_to_stamp(stamp_ns: int) -> tuple[int, int]:
+    """Integer nanoseconds as a ROS time's ``(sec, nanosec)``."""
+    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    return sec, nanosec

@@ -1,0 +1,246 @@
+"""What the package's output messages hold, as plain data (no rclpy): one rule for each.
+
+* ``sensor_msgs/BatteryState``: :func:`estimate_state` is the one rule for what the node
+  publishes on ``battery/soc`` (and ``soc_replay --output-bag`` writes): percentage, charge,
+  capacity, ``power_supply_status`` from the current with a dead band, ``power_supply_health``
+  from the battery's limits, technology from its chemistry. :func:`bridge_state` is what a
+  bridge publishes (the bundled bags' input, the live replay's input). Both return a
+  :class:`BatteryStateFields`; ``recordings.bags`` turns it into a rosbags message and
+  ``node.ros_messages`` into an rclpy one, field by field.
+* ``std_msgs/Float64MultiArray`` on ``battery/soc_estimate``: one flat float64 vector per
+  estimate::
+
+      data = [stamp_s, soc, soc_var, soc_std, voltage_pred_v, innovation_v, nis,
+              x[0..n-1], P[0,0], P[0,1], ..., P[n-1,n-1]]      (P row-major)
+
+  with ``layout.dim[0].label = "fields:" + ",".join(labels)``.
+
+The message constants (status, health, technology) are read from the Jazzy message definitions
+(rosbags' type store), never typed by hand.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+
+from .estimators.base import Estimate
+from .params import BatteryParams, Limits
+from .units import ros_current_from_core
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+BATTERY_STATE = "sensor_msgs/msg/BatteryState"
+FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+_BS = TYPESTORE.types[BATTERY_STATE]
+
+STATUS_UNKNOWN = int(_BS.POWER_SUPPLY_STATUS_UNKNOWN)
+STATUS_CHARGING = int(_BS.POWER_SUPPLY_STATUS_CHARGING)
+STATUS_DISCHARGING = int(_BS.POWER_SUPPLY_STATUS_DISCHARGING)
+STATUS_NOT_CHARGING = int(_BS.POWER_SUPPLY_STATUS_NOT_CHARGING)
+HEALTH_UNKNOWN = int(_BS.POWER_SUPPLY_HEALTH_UNKNOWN)
+HEALTH_GOOD = int(_BS.POWER_SUPPLY_HEALTH_GOOD)
+HEALTH_OVERHEAT = int(_BS.POWER_SUPPLY_HEALTH_OVERHEAT)
+HEALTH_DEAD = int(_BS.POWER_SUPPLY_HEALTH_DEAD)
+HEALTH_OVERVOLTAGE = int(_BS.POWER_SUPPLY_HEALTH_OVERVOLTAGE)
+HEALTH_COLD = int(_BS.POWER_SUPPLY_HEALTH_COLD)
+TECHNOLOGY_UNKNOWN = int(_BS.POWER_SUPPLY_TECHNOLOGY_UNKNOWN)
+
+#: ``power_supply_technology`` per chemistry of the battery files (Jazzy: LIFE 4, VRLA 8, LION 2).
+TECHNOLOGY_BY_CHEMISTRY: dict[str, int] = {
+    "lfp": int(_BS.POWER_SUPPLY_TECHNOLOGY_LIFE),
+    "sla": int(_BS.POWER_SUPPLY_TECHNOLOGY_VRLA),
+    "li_ion": int(_BS.POWER_SUPPLY_TECHNOLOGY_LION),
+}
+
+
+def chemistry_of_technology(technology: int) -> str | None:
+    """The battery-file chemistry of a ``power_supply_technology`` (None if none matches)."""
+    for chemistry, tech in TECHNOLOGY_BY_CHEMISTRY.items():
+        if tech == technology:
+            return chemistry
+    return None
+
+
+@dataclass(frozen=True)
+class BatteryStateFields:
+    """The fields of one ``sensor_msgs/BatteryState`` (``current`` in ROS's sign: negative
+    while discharging; NaN where a value is not known, as the message defines)."""
+
+    stamp_ns: int
+    voltage: float
+    current: float
+    temperature: float = math.nan
+    percentage: float = math.nan
+    charge: float = math.nan
+    capacity: float = math.nan
+    design_capacity: float = math.nan
+    power_supply_status: int = STATUS_UNKNOWN
+    power_supply_health: int = HEALTH_UNKNOWN
+    power_supply_technology: int = TECHNOLOGY_UNKNOWN
+    present: bool = True
+    location: str = ""
+    serial_number: str = ""
+    frame_id: str = "battery"
+
+
+def supply_status(current_ros_a: float, idle_current_a: float) -> int:
+    """DISCHARGING / CHARGING beyond ``idle_current_a`` (A) either way, else NOT_CHARGING."""
+    if current_ros_a < -idle_current_a:
+        return STATUS_DISCHARGING
+    if current_ros_a > idle_current_a:
+        return STATUS_CHARGING
+    return STATUS_NOT_CHARGING
+
+
+def supply_health(voltage_v: float, temperature_c: float, limits: Limits) -> int:
+    """OVERVOLTAGE / DEAD outside the voltage limits, COLD / OVERHEAT outside the temperature
+    limits (an unknown, NaN, temperature is not judged), else GOOD."""
+    if voltage_v > limits.voltage_max_v:
+        return HEALTH_OVERVOLTAGE
+    if voltage_v < limits.voltage_min_v:
+        return HEALTH_DEAD
+    if math.isfinite(temperature_c) and temperature_c < limits.temperature_min_c:
+        return HEALTH_COLD
+    if math.isfinite(temperature_c) and temperature_c > limits.temperature_max_c:
+        return HEALTH_OVERHEAT
+    return HEALTH_GOOD
+
+
+def estimate_state(
+    battery: BatteryParams,
+    soc: float,
+    stamp_ns: int,
+    voltage_v: float,
+    current_a: float,
+    temperature_c: float = math.nan,
+    *,
+    idle_current_a: float = 0.1,
+    location: str = "",
+    serial_number: str = "",
+    frame_id: str = "battery",
+) -> BatteryStateFields:
+    """The node's ``battery/soc`` message for a SoC estimate (``current_a`` in the core's sign).
+
+    ``percentage`` is the SoC (0..1), ``charge`` SoC x ``capacity_ah``, ``capacity`` the file's
+    ``capacity_ah``, ``design_capacity`` its ``nominal_capacity_ah``.
+    """
+    current_ros = ros_current_from_core(current_a)
+    return BatteryStateFields(
+        stamp_ns=int(stamp_ns),
+        voltage=float(voltage_v),
+        current=float(current_ros),
+        temperature=float(temperature_c),
+        percentage=float(soc),
+        charge=float(soc * battery.capacity_ah),
+        capacity=float(battery.capacity_ah),
+        design_capacity=float(battery.nominal_capacity_ah),
+        power_supply_status=supply_status(current_ros, idle_current_a),
+        power_supply_health=supply_health(voltage_v, temperature_c, battery.limits),
+        power_supply_technology=TECHNOLOGY_BY_CHEMISTRY.get(battery.chemistry, TECHNOLOGY_UNKNOWN),
+        present=True,
+        location=location,
+        serial_number=serial_number,
+        frame_id=frame_id,
+    )
+
+
+def bridge_state(
+    stamp_ns: int,
+    voltage_v: float,
+    current_a: float,
+    *,
+    temperature_c: float = math.nan,
+    percentage: float = math.nan,
+    charge_ah: float = math.nan,
+    capacity_ah: float = math.nan,
+    design_capacity_ah: float = math.nan,
+    technology: int = TECHNOLOGY_UNKNOWN,
+    present: bool = True,
+    location: str = "",
+    serial_number: str = "",
+    frame_id: str = "battery",
+) -> BatteryStateFields:
+    """What the robot's bridge publishes on ``battery/state`` (``current_a`` in the core's sign):
+    status from the current's sign, health unknown, charge and capacity NaN unless given.
+    ``percentage`` carries the reference SoC on ``/battery/soc_reference`` (bags/README.md)."""
+    current_ros = ros_current_from_core(current_a)
+    return BatteryStateFields(
+        stamp_ns=int(stamp_ns),
+        voltage=float(voltage_v),
+        current=float(current_ros),
+        temperature=float(temperature_c),
+        percentage=float(percentage),
+        charge=float(charge_ah),
+        capacity=float(capacity_ah),
+        design_capacity=float(design_capacity_ah),
+        power_supply_status=supply_status(current_ros, 0.0),
+        power_supply_technology=int(technology),
+        present=present,
+        location=location,
+        serial_number=serial_number,
+        frame_id=frame_id,
+    )
+
+
+ESTIMATE_FIELDS = (
+    "stamp_s",
+    "soc",
+    "soc_var",
+    "soc_std",
+    "voltage_pred_v",
+    "innovation_v",
+    "nis",
+)
+
+
+def estimate_labels(state_names: Sequence[str]) -> list[str]:
+    """Labels of the estimate vector for an estimator's state names."""
+    names = list(state_names)
+    return [
+        *ESTIMATE_FIELDS,
+        *(f"x.{n}" for n in names),
+        *(f"P.{a}.{b}" for a in names for b in names),
+    ]
+
+
+def layout_label(state_names: Sequence[str]) -> str:
+    """``layout.dim[0].label`` of the estimate vector."""
+    return "fields:" + ",".join(estimate_labels(state_names))
+
+
+def estimate_row(
+    stamp_s: float,
+    soc: float,
+    soc_var: float,
+    voltage_pred_v: float,
+    innovation_v: float,
+    nis: float,
+    x: np.ndarray,
+    p: np.ndarray,
+) -> list[float]:
+    """The estimate vector from its parts."""
+    head = [stamp_s, soc, soc_var, math.sqrt(max(soc_var, 0.0)), voltage_pred_v, innovation_v, nis]
+    return (
+        [float(v) for v in head] + [float(v) for v in np.ravel(x)] + [float(v) for v in np.ravel(p)]
+    )
+
+
+def estimate_vector(stamp_s: float, est: Estimate) -> list[float]:
+    """The estimate vector of one :class:`Estimate`."""
+    return estimate_row(
+        stamp_s, est.soc, est.soc_var, est.voltage_pred_v, est.innovation_v, est.nis, est.x, est.p
+    )
+
+
+def decode_estimate(msg: Any) -> dict[str, float]:
+    """A ``Float64MultiArray`` estimate message (rclpy's or rosbags') as {label: value}."""
+    label = msg.layout.dim[0].label
+    if not label.startswith("fields:"):
+        raise ValueError(f"not a soc_estimate layout: {label!r}")
+    names = label.removeprefix("fields:").split(",")
+    return dict(zip(names, (float(v) for v in msg.data), strict=True))

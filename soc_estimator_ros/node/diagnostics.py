@@ -1,0 +1,137 @@
+"""The node's ``/diagnostics`` status, computed from a tracker without ROS.
+
+One status per report (1 Hz): level OK / WARN / ERROR, a message joining every problem, and
+key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
+
+* WARN: no sample accepted yet, or none for ``stale_timeout_s`` (stale input);
+* WARN: samples rejected since the last report; temperatures ignored since the last report
+  (implausible readings, ``tracking/gate.py``); samples missing from the stamps since the last
+  report (input lost before the callback: queue overflow, a link dropping messages);
+* WARN / ERROR: SoC below ``low_soc_warn`` / ``low_soc_error``;
+* ERROR: pack voltage above or below the battery's voltage limits.
+
+:class:`Diagnostics` keeps the counts of the previous report (what "since the last report"
+compares with); ``node/ros_node.py`` turns a :class:`Report` into a ``DiagnosticStatus``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any
+
+from ..tracking import REJECTIONS, Tracker
+from ..units import NS_PER_S, ros_current_from_core
+
+#: The SoC std below which diagnostics report ``converged: true``.
+CONVERGED_SOC_STD = 0.02
+
+
+class Level(IntEnum):
+    """``diagnostic_msgs/DiagnosticStatus`` levels."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+
+
+@dataclass(frozen=True)
+class Report:
+    """One diagnostic status: level, message and key-value pairs (values as text)."""
+
+    level: Level
+    message: str
+    values: list[tuple[str, str]]
+
+
+def _text(value: Any) -> str:
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
+
+
+@dataclass
+class Diagnostics:
+    """Builds reports for one tracker; remembers what the previous report counted."""
+
+    tracker: Tracker
+    battery_file: str
+    start_steady_s: float
+    _seen: dict[str, int] = field(default_factory=dict)
+
+    def _new_since_last(self, key: str, count: int) -> int:
+        new = count - self._seen.get(key, 0)
+        self._seen[key] = count
+        return new
+
+    def report(
+        self,
+        now_steady_s: float,
+        stale_timeout_s: float,
+        low_soc: tuple[float, float],
+        extra: list[tuple[str, Any]] | None = None,
+    ) -> Report:
+        """The status now; ``low_soc`` = (warn, error) thresholds; ``extra`` key-values."""
+        tr = self.tracker
+        lim = tr.battery.limits
+        est = tr.last_estimate
+        last = tr.last_sample
+        problems: list[tuple[Level, str]] = []
+        if tr.last_accept_steady_s is None:
+            if now_steady_s - self.start_steady_s > stale_timeout_s:
+                problems.append((Level.WARN, "no input sample accepted yet"))
+        elif now_steady_s - tr.last_accept_steady_s > stale_timeout_s:
+            silent = now_steady_s - tr.last_accept_steady_s
+            problems.append((Level.WARN, f"stale input: no sample for {silent:.1f} s"))
+        gate = tr.gate
+        for key, count, what in (
+            ("rejected", gate.rejected_count, "samples rejected recently"),
+            ("temperature", gate.temperature_ignored, "implausible temperatures ignored recently"),
+            ("missing", tr.missing_samples, "samples missing from the input stamps recently"),
+        ):
+            new = self._new_since_last(key, count)
+            if new > 0:
+                problems.append((Level.WARN, f"{new} {what}"))
+        if est is not None and last is not None:
+            warn_soc, error_soc = low_soc
+            if est.soc < error_soc:
+                problems.append((Level.ERROR, f"low SoC {est.soc:.3f} < {error_soc:.3f}"))
+            elif est.soc < warn_soc:
+                problems.append((Level.WARN, f"low SoC {est.soc:.3f} < {warn_soc:.3f}"))
+            v = last.voltage_v
+            if v > lim.voltage_max_v:
+                problems.append((Level.ERROR, f"overvoltage {v:.3f} V > {lim.voltage_max_v:g} V"))
+            elif v < lim.voltage_min_v:
+                problems.append((Level.ERROR, f"undervoltage {v:.3f} V < {lim.voltage_min_v:g} V"))
+        level = max((lvl for lvl, _ in problems), default=Level.OK)
+        message = "; ".join(m for _, m in problems) or "OK"
+        nan = math.nan
+        period = tr.sample_period_s
+        values: list[tuple[str, Any]] = [
+            ("estimator", tr.estimator_name),
+            ("battery", tr.battery.name),
+            ("battery_file", self.battery_file),
+            ("soc", est.soc if est else nan),
+            ("soc_std", est.soc_std if est else nan),
+            ("nis", est.nis if est else nan),
+            ("innovation_v", est.innovation_v if est else nan),
+            ("voltage_v", last.voltage_v if last else nan),
+            ("current_a", ros_current_from_core(last.current_a) if last else nan),
+            ("temperature_c", last.temperature_c if last else nan),
+            ("samples_accepted", tr.samples_used),
+            *((f"rejected_{v.value}", gate.counts[v]) for v in REJECTIONS),
+            ("temperature_ignored", gate.temperature_ignored),
+            ("samples_missing", tr.missing_samples),
+            ("sample_period_s", period if period is not None else nan),
+            ("converged", str(bool(est and est.soc_std < CONVERGED_SOC_STD)).lower()),
+            ("clip_count", tr.estimator.clip_count),
+            (
+                "last_stamp_s",
+                f"{last.stamp_ns / NS_PER_S:.3f}" if last is not None else "none",
+            ),
+        ]
+        if hasattr(tr.estimator, "nis_avg"):
+            values.append(("nis_avg", float(tr.estimator.nis_avg)))
+        if hasattr(tr.estimator, "ocv_corrections"):
+            values.append(("ocv_corrections", int(tr.estimator.ocv_corrections)))
+        values += extra or []
+        return Report(level, message, [(k, _text(v)) for k, v in values])

@@ -1,0 +1,39 @@
+"""rclpy messages from the package's plain message content (``messages.py``): one filler per
+message type, used by the node and by the live replay's bridge."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
+
+from ..estimators.base import Estimate
+from ..messages import BatteryStateFields, estimate_labels, estimate_vector, layout_label
+from ..units import ns_to_stamp
+
+
+def battery_state_msg(fields: BatteryStateFields, header: Header | None = None) -> BatteryState:
+    """A ``BatteryState`` holding ``fields``; ``header`` (the input's) replaces the stamp."""
+    values = asdict(fields)
+    stamp_ns = values.pop("stamp_ns")
+    frame_id = values.pop("frame_id")
+    msg = BatteryState()
+    if header is not None:
+        msg.header = header
+    else:
+        msg.header.stamp.sec, msg.header.stamp.nanosec = ns_to_stamp(stamp_ns)
+        msg.header.frame_id = frame_id
+    for name, value in values.items():
+        setattr(msg, name, value)
+    return msg
+
+
+def estimate_msg(stamp_s: float, est: Estimate) -> Float64MultiArray:
+    """The labelled estimate vector (``messages.py``) as a ``Float64MultiArray``."""
+    n = len(estimate_labels(est.state_names))
+    arr = Float64MultiArray()
+    arr.layout.dim = [MultiArrayDimension(label=layout_label(est.state_names), size=n, stride=n)]
+    arr.layout.data_offset = 0
+    arr.data = estimate_vector(stamp_s, est)
+    return arr

@@ -1,0 +1,229 @@
+"""What a replay writes: the CSV of estimates, a bag like the node's output, plots, progress."""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..messages import (
+    BATTERY_STATE,
+    FLOAT64_ARRAY,
+    TECHNOLOGY_BY_CHEMISTRY,
+    bridge_state,
+    estimate_row,
+    estimate_state,
+    layout_label,
+)
+from ..params import BatteryParams
+from ..recordings import (
+    REFERENCE_TOPIC,
+    STATE_TOPIC,
+    battery_state_message,
+    float64_array_message,
+    write_bag,
+)
+from ..series import BatterySeries, EstimateSeries
+from .run import ReplayError, ReplayResult
+
+#: The error panel's axis never reaches past this (points); estimators beyond are marked.
+ERROR_AXIS_MAX_PCT = 20.0
+#: ... nor stays inside this (points), so a good run still shows its scale.
+ERROR_AXIS_MIN_PCT = 2.5
+
+
+class ProgressBar:
+    """A text progress bar on stderr: ``soc_replay: NAME [#####.....]  50 %``."""
+
+    def __init__(self, label: str, width: int = 30) -> None:
+        self.label, self.width = label, width
+
+    def __call__(self, done: int, total: int) -> None:
+        filled = self.width * done // max(total, 1)
+        bar = "#" * filled + "." * (self.width - filled)
+        end = "\n" if done >= total else ""
+        sys.stderr.write(
+            f"\rsoc_replay: {self.label} [{bar}] {100 * done // max(total, 1):3d} %{end}"
+        )
+        sys.stderr.flush()
+
+
+def write_output_bag(
+    path: Path, series: BatterySeries, battery: BatteryParams, results: list[ReplayResult]
+) -> None:
+    """The input and the estimates as a new bag (MCAP), on the node's topics and types.
+
+    ``/battery/state`` and ``/battery/soc_reference`` (when the input has one) as recorded;
+    ``/battery/soc`` as the node publishes it (``messages.estimate_state``) and
+    ``/battery/soc_estimate``; with several estimators, each one's topics under
+    ``/<estimator>/``. Rows before an estimator's first accepted sample are not written.
+    """
+    if path.exists():
+        raise ReplayError(f"--output-bag {path}: exists; give a new directory")
+    tech = TECHNOLOGY_BY_CHEMISTRY.get(battery.chemistry, 0)
+    n = len(series)
+    stamps = [int(s) for s in series.stamp_ns]
+
+    def bridge(k: int, **extra: float) -> Any:
+        return battery_state_message(
+            bridge_state(
+                stamps[k],
+                float(series.voltage_v[k]),
+                float(series.current_a[k]),
+                temperature_c=float(series.temperature_c[k]),
+                design_capacity_ah=battery.nominal_capacity_ah,
+                technology=tech,
+                **extra,
+            )
+        )
+
+    topics: list[tuple[str, str, Any]] = [
+        (STATE_TOPIC, BATTERY_STATE, ((stamps[k], bridge(k)) for k in range(n)))
+    ]
+    if series.soc_ref is not None:
+        ref = series.soc_ref
+        topics.append(
+            (
+                REFERENCE_TOPIC,
+                BATTERY_STATE,
+                (
+                    (stamps[k], bridge(k, percentage=float(ref[k])))
+                    for k in range(n)
+                    if math.isfinite(ref[k])
+                ),
+            )
+        )
+    for r in results:
+        e = r.estimates
+        prefix = f"/{e.estimator}" if len(results) > 1 else ""
+        rows = [k for k in range(n) if math.isfinite(e.soc[k])]
+
+        def soc_msgs(e: EstimateSeries = e, rows: list[int] = rows) -> Iterator[Any]:
+            for k in rows:
+                fields = estimate_state(
+                    battery,
+                    float(e.soc[k]),
+                    stamps[k],
+                    float(series.voltage_v[k]),
+                    float(series.current_a[k]),
+                    float(series.temperature_c[k]),
+                )
+                yield stamps[k], battery_state_message(fields)
+
+        def est_msgs(e: EstimateSeries = e, rows: list[int] = rows) -> Iterator[Any]:
+            label = layout_label(e.state_names)
+            for k in rows:
+                row = estimate_row(
+                    stamps[k] * 1e-9,
+                    float(e.soc[k]),
+                    float(e.soc_std[k]) ** 2,
+                    float(e.voltage_pred_v[k]),
+                    float(e.innovation_v[k]),
+                    float(e.nis[k]),
+                    e.x[k],
+                    e.p[k],
+                )
+                yield stamps[k], float64_array_message(label, row)
+
+        topics.append((f"{prefix}/battery/soc", BATTERY_STATE, soc_msgs()))
+        topics.append((f"{prefix}/battery/soc_estimate", FLOAT64_ARRAY, est_msgs()))
+    write_bag(path, topics)
+
+
+def write_csv(path: Path, result: ReplayResult) -> None:
+    """``time_s, soc, soc_std, voltage_v, voltage_pred_v, current_a`` per sample."""
+    e = result.estimates
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time_s", "soc", "soc_std", "voltage_v", "voltage_pred_v", "current_a"])
+        for row in zip(
+            e.t_s, e.soc, e.soc_std, e.voltage_v, e.voltage_pred_v, e.current_a, strict=True
+        ):
+            w.writerow([f"{v:.6g}" if k else f"{v:.3f}" for k, v in enumerate(row)])
+
+
+def error_axis_limit_pct(errors_pct: list[np.ndarray]) -> float:
+    """The error panel's half-range (points): wide enough for every estimator but the worst
+    one, between ``ERROR_AXIS_MIN_PCT`` and ``ERROR_AXIS_MAX_PCT``; an estimator beyond it is
+    clipped and marked, so one diverged filter does not flatten the others into a line."""
+    peaks = sorted(float(np.nanmax(np.abs(e))) for e in errors_pct if np.any(np.isfinite(e)))
+    if not peaks:
+        return ERROR_AXIS_MIN_PCT
+    second = peaks[-2] if len(peaks) > 1 else peaks[-1]
+    limit = 1.2 * (peaks[-1] if peaks[-1] <= 2.0 * second else second)
+    return min(max(limit, ERROR_AXIS_MIN_PCT), ERROR_AXIS_MAX_PCT)
+
+
+def plot_results(path: Path, series: BatterySeries, results: list[ReplayResult]) -> None:
+    """SoC vs reference with +-2 sigma, the error, and measured vs predicted voltage
+    (seed 000 Figs. 11-13), one colour per estimator. The error axis is clipped
+    (:func:`error_axis_limit_pct`); a clipped estimator is named in the panel with its peak."""
+    import matplotlib  # noqa: PLC0415 (only for plots)
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, axes = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
+    t_h = series.t_s / 3600.0
+    if series.soc_ref is not None:
+        axes[0].plot(t_h, 100 * series.soc_ref, "k", lw=1.5, label="reference")
+    axes[2].plot(t_h, series.voltage_v, color="0.6", lw=0.5, label="measured")
+    errors = (
+        [100 * (r.estimates.soc - series.soc_ref) for r in results]
+        if series.soc_ref is not None
+        else []
+    )
+    limit = error_axis_limit_pct(errors)
+    clipped: list[str] = []
+    for k, r in enumerate(results):
+        e = r.estimates
+        (line,) = axes[0].plot(t_h, 100 * e.soc, lw=1, label=e.estimator)
+        axes[0].fill_between(
+            t_h,
+            100 * (e.soc - 2 * e.soc_std),
+            100 * (e.soc + 2 * e.soc_std),
+            color=line.get_color(),
+            alpha=0.15,
+        )
+        if errors:
+            err = errors[k]
+            axes[1].plot(t_h, np.clip(err, -limit, limit), lw=1, color=line.get_color())
+            peak = float(np.nanmax(np.abs(err))) if np.any(np.isfinite(err)) else 0.0
+            if peak > limit:
+                clipped.append(f"{e.estimator} (peak {peak:.0f})")
+        if np.any(np.isfinite(e.voltage_pred_v)):
+            axes[2].plot(
+                t_h,
+                e.voltage_pred_v,
+                lw=0.7,
+                color=line.get_color(),
+                label=f"{e.estimator} predicted",
+            )
+    axes[0].set_ylabel("SoC (%)")
+    axes[0].legend(fontsize=8, ncol=3)
+    axes[1].set_ylabel("SoC error (points)")
+    axes[1].set_ylim(-1.05 * limit, 1.05 * limit)
+    for y in (-2, 2):
+        axes[1].axhline(y, color="k", ls=":", lw=0.8)
+    if clipped:
+        axes[1].text(
+            0.01,
+            0.97,
+            f"clipped at ±{limit:.1f}: " + ", ".join(clipped),
+            transform=axes[1].transAxes,
+            va="top",
+            fontsize=8,
+            bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"},
+        )
+    axes[2].set_ylabel("voltage (V)")
+    axes[2].set_xlabel("time (h)")
+    axes[2].legend(fontsize=8, ncol=3)
+    fig.suptitle(results[0].input_name)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,232 @@
+"""One replay job: a recording through one or more estimators, each behind a ``Tracker``.
+
+The samples go through the same :class:`~soc_estimator_ros.tracking.Tracker` the node uses: the
+input gate rejects and counts what the node rejects (NaN/inf, out of range, duplicate, out of
+order, stale, not present), and the start is the node's (``initial_soc``: the OCV of the first
+accepted sample by default, a given SoC, or the recording's reference with ``"ref"``).
+
+An :class:`EstimateSeries` keeps one row per input sample: a rejected sample repeats the last
+estimate (status = the rejection reason); rows before the first accepted sample are NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SocEstimatorError
+from ..estimators import ESTIMATORS
+from ..evaluation import Accuracy, accuracy
+from ..messages import chemistry_of_technology
+from ..params import BatteryParams, load_battery_params
+from ..recordings import read_recording
+from ..resources import BUNDLED_FILES, bundled_file
+from ..series import BatterySeries, EstimateSeries
+from ..tracking import GateConfig, Sample, Tracker, TrackerConfig, Verdict
+from ..units import CurrentSign
+
+#: Std of a given (numeric or reference) initial SoC.
+INITIAL_SOC_STD = 0.1
+#: The accuracy window (s): errors are scored after it (evaluation.accuracy's default).
+ACCURACY_WINDOW_S = 600.0
+
+Progress = Callable[[int, int], None]
+
+
+class ReplayError(SocEstimatorError, ValueError):
+    """A replay that cannot run or whose result is unusable (one line, the input named)."""
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """One estimator on one input: its estimates, accuracy, start and input counts."""
+
+    input_name: str
+    estimates: EstimateSeries
+    accuracy: Accuracy | None
+    start: str
+    counts: dict[str, int]
+
+    @property
+    def finite(self) -> bool:
+        """True when the run ends with a finite SoC and std."""
+        e = self.estimates
+        return bool(len(e.soc)) and math.isfinite(e.soc[-1]) and math.isfinite(e.soc_std[-1])
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    """What to replay: an input, how to read it, with which file, estimators and start."""
+
+    path: Path
+    estimators: tuple[str, ...]
+    params: Path | None = None
+    initial_soc: str = "ocv"
+    topic: str = "/battery/state"
+    sign: CurrentSign = CurrentSign.DISCHARGE_POSITIVE
+    progress: bool = False
+    live_rate: float | None = None
+    live: bool = False
+    extras: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        """The input's name in tables and plots."""
+        return self.path.name
+
+
+def battery_file_for(series: BatterySeries) -> Path:
+    """The bundled battery file matching a recording's ``power_supply_technology``."""
+    chemistry = chemistry_of_technology(series.technology)
+    if chemistry is None:
+        known = ", ".join(f"{c} -> {f}" for c, f in BUNDLED_FILES.items())
+        raise ReplayError(
+            f"power_supply_technology {series.technology} matches no bundled battery file "
+            f"({known}): pass --params"
+        )
+    return bundled_file(chemistry)
+
+
+def tracker_config(series: BatterySeries, estimator: str, initial_soc: str) -> TrackerConfig:
+    """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text)."""
+    if initial_soc == "ocv":
+        return TrackerConfig(estimator=estimator, initial_soc="ocv")
+    if initial_soc == "ref":
+        if series.soc_ref is None or not math.isfinite(series.soc_ref[0]):
+            raise ReplayError("--initial-soc ref: the recording has no reference SoC at its start")
+        value = float(series.soc_ref[0])
+    else:
+        try:
+            value = float(initial_soc)
+        except ValueError:
+            raise ReplayError(
+                f"--initial-soc {initial_soc}: expected ocv, ref or a fraction in [0, 1]"
+            ) from None
+        if not 0.0 <= value <= 1.0:
+            raise ReplayError(f"--initial-soc {initial_soc}: expected a fraction in [0, 1]")
+    return TrackerConfig(estimator=estimator, initial_soc=value, initial_soc_std=INITIAL_SOC_STD)
+
+
+def track_series(
+    series: BatterySeries, tracker: Tracker, progress: Progress | None = None
+) -> tuple[EstimateSeries, str]:
+    """Every sample of ``series`` through ``tracker``; the estimates and the start used."""
+    n = len(series)
+    soc = np.full(n, math.nan)
+    std = np.full(n, math.nan)
+    v_pred = np.full(n, math.nan)
+    nis = np.full(n, math.nan)
+    innov = np.full(n, math.nan)
+    dim = len(tracker.estimator.state_names)
+    x = np.full((n, dim), math.nan)
+    p = np.full((n, dim, dim), math.nan)
+    status: list[str] = []
+    start = ""
+    every = max(1, n // 50)
+    last = None
+    for k in range(n):
+        sample = Sample(
+            int(series.stamp_ns[k]),
+            float(series.current_a[k]),
+            float(series.voltage_v[k]),
+            float(series.temperature_c[k]),
+        )
+        result = tracker.process(sample)
+        if result.estimate is not None:
+            last = result.estimate
+            status.append(last.status.value)
+            v_pred[k], innov[k], nis[k] = last.voltage_pred_v, last.innovation_v, last.nis
+            if not start and result.events:
+                start = result.events[0].message
+        else:
+            status.append(result.verdict.value)
+        if last is not None:
+            soc[k], std[k] = last.soc, last.soc_std
+            x[k], p[k] = last.x, last.p
+        if progress is not None and (k + 1) % every == 0:
+            progress(k + 1, n)
+    estimates = EstimateSeries(
+        estimator=tracker.estimator.name,
+        t_s=np.asarray(series.t_s, dtype=float),
+        soc=soc,
+        soc_std=std,
+        voltage_v=np.asarray(series.voltage_v, dtype=float),
+        voltage_pred_v=v_pred,
+        current_a=np.asarray(series.current_a, dtype=float),
+        nis=nis,
+        status=tuple(status),
+        innovation_v=innov,
+        x=x,
+        p=p,
+        state_names=tracker.estimator.state_names,
+    )
+    return estimates, start or "no sample accepted"
+
+
+def replay_estimator(
+    series: BatterySeries,
+    battery: BatteryParams,
+    estimator: str,
+    initial_soc: str,
+    name: str,
+    progress: Progress | None = None,
+) -> ReplayResult:
+    """One estimator over a recording, offline, behind a tracker."""
+    tracker = Tracker(
+        battery,
+        GateConfig.from_limits(battery.limits),
+        tracker_config(series, estimator, initial_soc),
+    )
+    estimates, start = track_series(series, tracker, progress)
+    counts = {v.value: c for v, c in tracker.gate.counts.items() if c and v is not Verdict.ACCEPTED}
+    if tracker.gate.temperature_ignored:
+        counts["temperature_ignored"] = tracker.gate.temperature_ignored
+    return ReplayResult(name, estimates, score(series, estimates), start, counts)
+
+
+def score(series: BatterySeries, estimates: EstimateSeries) -> Accuracy | None:
+    """Accuracy against the recording's reference (None without one or a short run)."""
+    if series.soc_ref is None or series.t_s[-1] <= ACCURACY_WINDOW_S:
+        return None
+    try:
+        return accuracy(estimates.t_s, estimates.soc, series.soc_ref, ACCURACY_WINDOW_S)
+    except ValueError:
+        return None  # no sample with both an estimate and a reference after the window
+
+
+def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayResult]]:
+    """Read the job's input and replay it through each of its estimators."""
+    from .outputs import ProgressBar  # noqa: PLC0415 (outputs imports matplotlib lazily)
+
+    series = read_recording(job.path, job.topic, job.sign)
+    battery_file = job.params or battery_file_for(series)
+    battery = load_battery_params(battery_file)
+    results = []
+    for estimator in job.estimators:
+        if estimator not in ESTIMATORS:
+            raise ReplayError(f"unknown estimator {estimator!r}")
+        bar = ProgressBar(f"{job.name} {estimator}{' (live)' if job.live else ''}")
+        progress = bar if job.progress else None
+        if job.live:
+            from .live import replay_live  # noqa: PLC0415 (rclpy only for --live)
+
+            config = tracker_config(series, estimator, job.initial_soc)
+            estimates, start = replay_live(
+                series, Path(battery_file).resolve(), config, job.live_rate, progress
+            )
+            result = ReplayResult(job.name, estimates, score(series, estimates), start, {})
+        else:
+            result = replay_estimator(
+                series, battery, estimator, job.initial_soc, job.name, progress
+            )
+        if not result.finite:
+            raise ReplayError(
+                f"{job.name}: {estimator} ends with a SoC that is not finite "
+                f"(rejected: {result.counts or 'none'})"
+            )
+        results.append(result)
+    return series, battery, results

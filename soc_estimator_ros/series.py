@@ -1,0 +1,77 @@
+"""The data a recording holds and the data an estimator produces over it (plain numpy, no ROS).
+
+:class:`BatterySeries` is one recording (a bag or a CSV), aligned, in stamp order;
+:class:`EstimateSeries` is an estimator's output over a recording, one row per input sample.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class BatterySeries:
+    """Samples of one recording, aligned, in stamp order.
+
+    Attributes:
+        t_s: seconds since the first sample.
+        stamp_ns: absolute header stamps (ns).
+        current_a: current in A, core convention (positive while discharging).
+        voltage_v: pack voltage in V.
+        temperature_c: temperature in degC (NaN where the bridge sent none).
+        soc_ref: reference SoC (fraction) at each sample, or None without a reference topic.
+        design_capacity_ah: the bridge's design capacity (NaN if not sent).
+        technology: ``power_supply_technology`` of the first sample.
+        reference_capacity_ah: capacity behind the reference SoC, or None.
+        repeated_stamps: rows dropped on reading because they repeated the previous row's
+            time (a CSV from a cell tester logs a record at both sides of a step boundary).
+    """
+
+    t_s: np.ndarray
+    stamp_ns: np.ndarray
+    current_a: np.ndarray
+    voltage_v: np.ndarray
+    temperature_c: np.ndarray
+    soc_ref: np.ndarray | None = None
+    design_capacity_ah: float = math.nan
+    technology: int = 0
+    reference_capacity_ah: float | None = None
+    repeated_stamps: int = 0
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def window(self, lo: int, hi: int | None = None) -> BatterySeries:
+        """Samples ``lo`` to ``hi`` (exclusive) as a recording of their own (time from 0)."""
+        sl = slice(lo, hi)
+        return replace(
+            self,
+            t_s=self.t_s[sl] - self.t_s[lo],
+            stamp_ns=self.stamp_ns[sl],
+            current_a=self.current_a[sl],
+            voltage_v=self.voltage_v[sl],
+            temperature_c=self.temperature_c[sl],
+            soc_ref=None if self.soc_ref is None else self.soc_ref[sl],
+        )
+
+
+@dataclass(frozen=True)
+class EstimateSeries:
+    """An estimator's outputs over a run, one row per input sample."""
+
+    estimator: str
+    t_s: np.ndarray
+    soc: np.ndarray
+    soc_std: np.ndarray
+    voltage_v: np.ndarray
+    voltage_pred_v: np.ndarray
+    current_a: np.ndarray
+    nis: np.ndarray
+    status: tuple[str, ...]
+    innovation_v: np.ndarray
+    x: np.ndarray  # (n, dim_x): the state after each sample
+    p: np.ndarray  # (n, dim_x, dim_x): its covariance
+    state_names: tuple[str, ...]

@@ -1,0 +1,402 @@
+"""The tracker: one battery's SoC over a stream of samples, without ROS.
+
+``Sample`` in -> input gate -> estimator -> :class:`StepResult` (the verdict, the estimate, and
+events to log). The node (``node/ros_node.py``), ``soc_replay`` offline and the benchmarks feed
+samples through this one path, so they reject, count, initialize, resume and re-base alike.
+
+What it owns, besides the estimator and the gate:
+
+* **Time base.** The estimator's time is seconds since the first accepted stamp (``t0_ns``).
+  A source whose stamps jump is never integrated across the jump:
+
+  - backwards beyond the stale window (a bridge restarted its clock): its samples are rejected
+    as ``STALE`` until they have stayed there for ``rebase_after_s`` of steady time and at least
+    ``REBASE_MIN_SAMPLES`` samples; then the time base is re-anchored on them;
+  - forwards beyond what the receiver's clock has advanced plus ``GateConfig.time_jump_s`` (one
+    stamp a day ahead, a source switching from zero-based stamps to real time): rejected as
+    ``TIME_JUMP``; ``REBASE_MIN_SAMPLES`` consecutive samples that agree with each other on
+    the new time line re-anchor the time base, otherwise the lone sample was an outlier.
+
+  A re-anchored time line continues after the last accepted sample by the steady time elapsed
+  since (the best knowledge of the real interval): the estimator bridges it as a step or a gap
+  (``TimePolicy``), so the SoC moves only by the charge the current can explain over it.
+* **Initialization** on the first accepted sample: a given SoC, the OCV of that sample's
+  voltage (``"ocv"``), or a saved state (``"resume"``, through the ``resume`` callback) with an
+  OCV fallback.
+* **Run-time control**: reset to a SoC, reset from the OCV, switch estimator (keeping SoC,
+  variance, time base and current), recover from an estimator exception.
+* **Counts**: the gate's verdicts, ignored temperatures, and samples missing from the stamps
+  (gaps of whole sample periods, estimated from the median period), so lost input shows.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
+from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
+from ..params import BatteryParams
+from ..units import NS_PER_S
+from .gate import GateConfig, InputGate, Verdict
+from .persistence import ResumeDecision
+
+#: Minimum SoC std used for (re-)initializations (an OCV on a steep curve is not exact).
+MIN_INIT_SOC_STD = 1e-3
+#: Jumped samples needed (besides ``rebase_after_s`` for backward jumps) to re-anchor time.
+REBASE_MIN_SAMPLES = 3
+#: Accepted intervals used to estimate the source's sample period (median).
+PERIOD_WINDOW = 50
+
+
+class Level(str, Enum):
+    """How loud an :class:`Event` is (the node logs at this level)."""
+
+    INFO = "info"
+    WARNING = "warning"
+    ERROR = "error"
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something the caller should log. ``key`` groups events for throttling ("" = never)."""
+
+    level: Level
+    message: str
+    key: str = ""
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One reading of the pack (the core's conventions, ``units.py``).
+
+    Attributes:
+        stamp_ns: the sample's stamp (ns, the source's clock).
+        current_a: current (A, positive while discharging).
+        voltage_v: pack voltage (V).
+        temperature_c: temperature (degC; NaN if not measured).
+        present: the source says a battery is present.
+    """
+
+    stamp_ns: int
+    current_a: float
+    voltage_v: float
+    temperature_c: float = math.nan
+    present: bool = True
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What became of one sample: the verdict, the estimate if accepted, events to log."""
+
+    verdict: Verdict
+    estimate: Estimate | None = None
+    events: tuple[Event, ...] = ()
+
+    @property
+    def accepted(self) -> bool:
+        """True when the estimator ran on the sample."""
+        return self.estimate is not None
+
+
+InitialSoc = float | str  # a fraction, "ocv" or "resume"
+ResumeFn = Callable[[float], ResumeDecision]
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """How a tracker starts and re-anchors.
+
+    Attributes:
+        estimator: estimator (or preset) name.
+        initial_soc: a fraction in [0, 1], ``"ocv"`` or ``"resume"``.
+        initial_soc_std: std of a numeric ``initial_soc``.
+        ocv_voltage_std_v: voltage uncertainty when a voltage is read as an OCV (V).
+        rebase_after_s: steady time a backward jump must persist before re-anchoring (s).
+    """
+
+    estimator: str = DEFAULT_ESTIMATOR
+    initial_soc: InitialSoc = "ocv"
+    initial_soc_std: float = 0.1
+    ocv_voltage_std_v: float = 0.05
+    rebase_after_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        init = self.initial_soc
+        if isinstance(init, str):
+            if init not in ("ocv", "resume"):
+                raise ValueError(f"initial_soc = {init!r}: expected a fraction, 'ocv' or 'resume'")
+        elif not 0.0 <= float(init) <= 1.0:
+            raise ValueError(f"initial_soc = {init!r}: expected a fraction in [0, 1]")
+
+
+class Tracker:
+    """One battery's SoC estimation over a sample stream (see the module docstring).
+
+    Not thread-safe: the node serializes calls with its lock.
+    """
+
+    def __init__(
+        self,
+        battery: BatteryParams,
+        gate: GateConfig,
+        config: TrackerConfig | None = None,
+        *,
+        resume: ResumeFn | None = None,
+        steady_clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.battery = battery
+        self.config = config or TrackerConfig()
+        self.gate = InputGate(gate)
+        self._resume = resume
+        self._steady = steady_clock
+        self._ocv = battery.ocv_curve()
+        init = self.config.initial_soc
+        self._initial: InitialSoc = init
+        soc0 = float(init) if not isinstance(init, str) else 0.5
+        self.estimator: Estimator = make_estimator(
+            self.config.estimator, battery, soc0, self.config.initial_soc_std
+        )
+        self.estimator_name = self.config.estimator
+        #: Stamp of the first accepted sample: the estimator's time origin (None before).
+        self.t0_ns: int | None = None
+        self.last_sample: Sample | None = None
+        self.last_estimate: Estimate | None = None
+        self.last_accept_steady_s: float | None = None
+        self.samples_used = 0
+        #: Grows on every change of the estimate (a save is due when it moved since the last).
+        self.revision = 0
+        self.missing_samples = 0
+        self._stale_since_s: float | None = None
+        self._stale_run = 0
+        self._jump_run: list[int] = []
+        self._intervals: list[float] = []
+        self._period_s: float | None = None
+
+    # -- the estimation step ------------------------------------------------------------------
+    def process(
+        self, sample: Sample, now_ns: int | None = None, clock_ns: int | None = None
+    ) -> StepResult:
+        """Gate one sample and, if accepted, run the estimator on it.
+
+        Args:
+            sample: the reading.
+            now_ns: the receiver's clock (ns) for the gate's age check (``stale_vs_clock``),
+                or None to skip it.
+            clock_ns: the receiver's clock (ns) at arrival, for the time-jump check, or None
+                (offline: the stamps are the only time).
+        """
+        s = sample
+        events: list[Event] = []
+        verdict = self.gate.evaluate(
+            s.stamp_ns, s.current_a, s.voltage_v, s.present, now_ns, clock_ns
+        )
+        if verdict is Verdict.STALE and self._stale_long_enough():
+            events.append(self._rebase(s.stamp_ns, "jumped back"))
+            verdict = self.gate.evaluate(s.stamp_ns, s.current_a, s.voltage_v, s.present, now_ns)
+        elif verdict is Verdict.TIME_JUMP and self._jump_confirmed(s.stamp_ns):
+            events.append(self._rebase(s.stamp_ns, "jumped ahead"))
+            verdict = self.gate.evaluate(s.stamp_ns, s.current_a, s.voltage_v, s.present, now_ns)
+        if verdict is not Verdict.TIME_JUMP:
+            self._jump_run.clear()
+        self.gate.commit(verdict, s.stamp_ns, clock_ns)
+        if not verdict.accepted:
+            return StepResult(verdict, None, (*events, self._rejection_event(verdict, s)))
+        self._stale_since_s = None
+        if self.t0_ns is None:
+            events.append(self._initialize(s))
+            self.t0_ns = s.stamp_ns
+        t_s = (s.stamp_ns - self.t0_ns) * 1e-9  # as BatterySeries.t_s: the same float
+        temperature_c = self.gate.temperature(s.temperature_c)
+        temp = temperature_c if math.isfinite(temperature_c) else None
+        t_prev = self.estimator.t_last_s
+        try:
+            est = self.estimator.step(t_s, s.current_a, s.voltage_v, temp)
+        except Exception as exc:  # a numerical failure must not end the run
+            self.gate.record(Verdict.ESTIMATOR_ERROR)
+            return StepResult(Verdict.ESTIMATOR_ERROR, None, (*events, self._recover(exc)))
+        if est.status is StepStatus.REJECTED_DT:
+            self.gate.record(Verdict.ESTIMATOR_DT)
+            return StepResult(
+                Verdict.ESTIMATOR_DT,
+                None,
+                (*events, self._rejection_event(Verdict.ESTIMATOR_DT, s)),
+            )
+        if t_prev is not None:
+            self._count_missing(t_s - t_prev)
+        self.samples_used += 1
+        self.last_estimate = est
+        self.last_sample = Sample(s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present)
+        self.last_accept_steady_s = self._steady()
+        self.revision += 1
+        return StepResult(verdict, est, tuple(events))
+
+    def _rejection_event(self, verdict: Verdict, s: Sample) -> Event:
+        return Event(
+            Level.WARNING,
+            f"rejected sample ({verdict.value}): stamp {s.stamp_ns / NS_PER_S:.3f} s, "
+            f"current {s.current_a:g} A (discharge +), voltage {s.voltage_v:g} V; "
+            f"{self.gate.counts[verdict]} rejected for this reason so far",
+            key=verdict.value,
+        )
+
+    # -- time base ----------------------------------------------------------------------------
+    def _stale_long_enough(self) -> bool:
+        """True once stale stamps persisted ``rebase_after_s`` (steady) and enough samples."""
+        now = self._steady()
+        if self._stale_since_s is None:
+            self._stale_since_s, self._stale_run = now, 0
+        self._stale_run += 1
+        waited = now - self._stale_since_s
+        return waited >= self.config.rebase_after_s and self._stale_run >= REBASE_MIN_SAMPLES
+
+    def _jump_confirmed(self, stamp_ns: int) -> bool:
+        """True once ``REBASE_MIN_SAMPLES`` jumped samples agree on one new time line."""
+        run = self._jump_run
+        tol_ns = round(self.gate.config.time_jump_s * NS_PER_S)
+        if run and not 0 < stamp_ns - run[-1] <= tol_ns:
+            run.clear()  # not the same time line as the previous jumped sample
+        run.append(stamp_ns)
+        return len(run) >= REBASE_MIN_SAMPLES
+
+    def _rebase(self, stamp_ns: int, how: str) -> Event:
+        """Continue the time line from a source whose stamps jumped (see the module docstring)."""
+        newest = self.gate.newest_stamp_ns or stamp_ns
+        last_t = self.estimator.t_last_s
+        now = self._steady()
+        elapsed = now - (self.last_accept_steady_s if self.last_accept_steady_s else now)
+        if last_t is not None and self.t0_ns is not None:
+            self.t0_ns = stamp_ns - round((last_t + max(elapsed, 1e-3)) * NS_PER_S)
+        self.gate.rebase()
+        self._stale_since_s = None
+        self._jump_run.clear()
+        return Event(
+            Level.ERROR,
+            f"input stamps {how} by {abs(newest - stamp_ns) / NS_PER_S:.3f} s and stayed "
+            f"there (source restarted or its clock changed?); continuing with the new stamps "
+            f"({elapsed:.1f} s after the last accepted sample)",
+        )
+
+    def _count_missing(self, dt_s: float) -> None:
+        """Add the whole sample periods missing in an accepted interval to ``missing_samples``."""
+        if self._period_s is None:
+            self._intervals.append(dt_s)
+            if len(self._intervals) >= PERIOD_WINDOW:
+                self._period_s = float(np.median(self._intervals))
+                self._intervals.clear()
+            return
+        lost = round(dt_s / self._period_s) - 1
+        if lost > 0:
+            self.missing_samples += lost
+
+    @property
+    def sample_period_s(self) -> float | None:
+        """The source's sample period (median of the first intervals), None until known."""
+        return self._period_s
+
+    # -- initialization and control -----------------------------------------------------------
+    def soc_from_ocv(self, voltage_v: float) -> tuple[float, float]:
+        """The SoC (clipped to [0, 1]) and its std read from ``voltage_v`` as an OCV."""
+        soc, std = self._ocv.soc_at_with_std(voltage_v, self.config.ocv_voltage_std_v)
+        return min(max(soc, 0.0), 1.0), max(std, MIN_INIT_SOC_STD)
+
+    def _initialize(self, s: Sample) -> Event:
+        """Apply ``initial_soc`` on the first accepted sample."""
+        init = self._initial
+        if not isinstance(init, str):
+            return Event(Level.INFO, f"initial SoC {float(init):.4f} (given)")
+        reason = ""
+        if init == "resume":
+            if self._resume is None:
+                reason = "no state file"
+            else:
+                decision = self._resume(s.stamp_ns / NS_PER_S)
+                if decision.state is not None:
+                    st = decision.state
+                    self.estimator.reset_soc(st.soc, max(math.sqrt(st.soc_var), 1e-6))
+                    return Event(Level.INFO, decision.reason)
+                reason = decision.reason
+        soc, std = self.soc_from_ocv(s.voltage_v)
+        self.estimator.reset_soc(soc, std)
+        start = f"SoC {soc:.4f} (std {std:.4f}) from the OCV at {s.voltage_v:.3f} V"
+        if init == "resume":
+            return Event(Level.WARNING, f"initial_soc=resume: {reason}; initialized {start}")
+        return Event(Level.INFO, f"initial_soc=ocv: {start}")
+
+    @property
+    def started(self) -> bool:
+        """True once a sample was accepted (the time base and the initial SoC are set)."""
+        return self.t0_ns is not None
+
+    def reset_soc(self, soc: float, soc_std: float) -> None:
+        """Reset the SoC (keeps the time base); before the first sample it replaces
+        ``initial_soc``."""
+        self.estimator.reset_soc(soc, soc_std)
+        if not self.started:
+            self._initial = soc
+        self.revision += 1
+
+    def reset_from_ocv(self) -> tuple[float, float, Sample]:
+        """Reset the SoC from the last accepted voltage read as an OCV; (soc, std, sample).
+
+        Raises ``LookupError`` before any sample was accepted.
+        """
+        last = self.last_sample
+        if last is None:
+            raise LookupError("no accepted sample yet: no voltage to read as an OCV")
+        soc, std = self.soc_from_ocv(last.voltage_v)
+        self.estimator.reset_soc(soc, std)
+        self.revision += 1
+        return soc, std, last
+
+    def prepare_estimator(self, name: str) -> Estimator:
+        """A new estimator ``name`` for this battery (``ValueError`` for an unknown name)."""
+        return make_estimator(name, self.battery, 0.5, 0.1)
+
+    def switch_estimator(self, name: str, prepared: Estimator | None = None) -> Event:
+        """Continue with estimator ``name`` from the current SoC, variance, time and current."""
+        new = prepared
+        if new is None or new.name != PRESETS.get(name, name):
+            new = self.prepare_estimator(name)
+        old = self.estimator
+        soc, var = old.soc, old.soc_var
+        new.start_from(old.t_last_s, soc, var, old.current_last_a)
+        self.estimator = new
+        old_name, self.estimator_name = self.estimator_name, name
+        self.revision += 1
+        return Event(
+            Level.INFO,
+            f"switched estimator {old_name} -> {name} at SoC {soc:.4f} (std {math.sqrt(var):.4f})",
+        )
+
+    def _recover(self, exc: Exception) -> Event:
+        """Rebuild the estimator from its last good estimate after an exception in step()."""
+        old = self.estimator
+        last = self.last_estimate
+        soc = last.soc if last else 0.5
+        var = last.soc_var if last else 0.25
+        new = make_estimator(self.estimator_name, self.battery, soc, max(math.sqrt(var), 1e-3))
+        new.start_from(old.t_last_s, soc, var, old.current_last_a)
+        self.estimator = new
+        return Event(
+            Level.ERROR,
+            f"{self.estimator_name} failed on a sample ({type(exc).__name__}: {exc}); "
+            "restarting it from its last good SoC",
+            key="estimator_error",
+        )
+
+    # -- state --------------------------------------------------------------------------------
+    @property
+    def soc(self) -> float:
+        """The SoC now."""
+        return self.estimator.soc
+
+    @property
+    def soc_var(self) -> float:
+        """The SoC variance now, at most ``MAX_SOC_VAR`` (what a state file may hold)."""
+        return min(self.estimator.soc_var, MAX_SOC_VAR)
