@@ -19,7 +19,7 @@ from soc_estimator_ros.bag_io import (
     STATE_TOPIC,
     TECHNOLOGY_BY_CHEMISTRY,
     TYPESTORE,
-    BagError,
+    RecordingError,
     battery_state_message,
     read_battery_bag,
     write_battery_bag,
@@ -210,22 +210,22 @@ def test_round_trip(tmp_path: Path, storage: str, compress: bool) -> None:
 
 def test_missing_topic_names_what_exists(tmp_path: Path) -> None:
     write_battery_bag(tmp_path / "b", [("/other", _messages(5))])
-    with pytest.raises(BagError, match=r"no topic /battery/state \(topics in the bag: /other\)"):
+    with pytest.raises(RecordingError, match=r"no topic /battery/state \(topics in the bag: /other\)"):
         read_battery_bag(tmp_path / "b")
 
 
 def test_empty_topic(tmp_path: Path) -> None:
     write_battery_bag(tmp_path / "b", [(STATE_TOPIC, [])])
-    with pytest.raises(BagError, match="has no messages"):
+    with pytest.raises(RecordingError, match="has no messages"):
         read_battery_bag(tmp_path / "b")
 
 
 def test_not_a_bag(tmp_path: Path) -> None:
-    with pytest.raises(BagError, match="no such bag"):
+    with pytest.raises(RecordingError, match="no such bag"):
         read_battery_bag(tmp_path / "nothing")
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "metadata.yaml").write_text("not: a bag\n")
-    with pytest.raises(BagError, match="cannot be read"):
+    with pytest.raises(RecordingError, match="cannot be read"):
         read_battery_bag(tmp_path / "junk")
 
 
@@ -235,7 +235,7 @@ def test_truncated_bag(tmp_path: Path, storage: str) -> None:
     data = next(f for f in (tmp_path / "b").iterdir() if f.name != "metadata.yaml")
     raw = data.read_bytes()
     data.write_bytes(raw[: len(raw) // 3])
-    with pytest.raises(BagError, match="cannot be read"):
+    with pytest.raises(RecordingError, match="cannot be read"):
         read_battery_bag(tmp_path / "b")
 
 
@@ -246,5 +246,5 @@ def test_wrong_message_type(tmp_path: Path) -> None:
     meta_path.write_text(
         meta_path.read_text().replace("sensor_msgs/msg/BatteryState", "std_msgs/msg/Float32")
     )
-    with pytest.raises(BagError, match="BatteryState|cannot be read"):
+    with pytest.raises(RecordingError, match="BatteryState|cannot be read"):
         read_battery_bag(src)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from soc_estimator_ros.bag_io import BagError, BatterySeries, read_csv
+from soc_estimator_ros.bag_io import RecordingError, BatterySeries, read_csv
 from soc_estimator_ros.conventions import CurrentSign
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.identification.cli import main as identify_main
@@ -122,7 +122,7 @@ def test_repeated_time_stamps_are_dropped_and_backwards_time_refused(tmp_path: P
     assert s.repeated_stamps == 1
     assert np.isnan(s.temperature_c[2])  # an empty cell is "not measured"
     path.write_text("time_s,current_a,voltage_v\n0,0,4.1\n1,0,4.1\n0.5,0,4.1\n")
-    with pytest.raises(BagError, match="must not decrease"):
+    with pytest.raises(RecordingError, match="must not decrease"):
         read_csv(path, CurrentSign.DISCHARGE_POSITIVE)
 
 
