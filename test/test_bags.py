@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 import yaml
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader
+from rosbags.rosbag2.storage_mcap import McapReader
 
 from soc_estimator_ros.bag_io import (
     REFERENCE_TOPIC,
@@ -52,9 +54,37 @@ def test_the_bag_set_is_complete() -> None:
     assert storages == {"mcap", "sqlite3"}  # the package must read both
 
 
-def test_bags_stay_under_40_mb() -> None:
+def test_bags_stay_under_80_mb() -> None:
+    # 66 MB: MCAP's message indexes (16 bytes a message) are outside the compressed chunks.
     total = sum(f.stat().st_size for b in ALL for f in b.rglob("*") if f.is_file())
-    assert total < 40e6, total
+    assert total < 80e6, total
+
+
+def _mcap_chunk_compressions(mcap: Path) -> set[str]:
+    """The ``compression`` of every chunk record (read with rosbags' own MCAP reader)."""
+    reader = McapReader(mcap)
+    reader.open()
+    try:
+        assert reader.chunks
+        return {chunk.compression for chunk in reader.chunks}
+    finally:
+        reader.close()
+
+
+def test_bundled_mcap_bags_are_chunk_compressed() -> None:
+    """Every MCAP bag is one plain ``.mcap`` with zstd chunks (Foxglove and PlotJuggler open
+    it as is); only the sqlite3 runs are rosbag2 file-compressed (``.db3.zstd``)."""
+    for bag in ALL:
+        files = sorted(f.name for f in bag.iterdir() if f.suffix not in (".yaml", ".md"))
+        info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        if meta(bag)["storage"] == "mcap":
+            assert files == [f"{bag.name}.mcap"], bag.name
+            assert info["compression_mode"] == "" and info["compression_format"] == ""
+            assert _mcap_chunk_compressions(bag / files[0]) == {"zstd"}, bag.name
+        else:
+            assert files == [f"{bag.name}.db3.zstd"], bag.name
+            assert info["compression_mode"] == "file"
+    assert not list(BAGS.rglob("*.mcap.zstd"))
 
 
 @pytest.mark.parametrize("bag", ALL, ids=lambda p: p.name)
@@ -184,9 +214,17 @@ def _messages(n: int, t0_ns: int = 1_000_000_000):
     ]
 
 
-@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
-@pytest.mark.parametrize("compress", [False, True])
-def test_round_trip(tmp_path: Path, storage: str, compress: bool) -> None:
+@pytest.mark.parametrize(
+    ("storage", "compression"),
+    [
+        ("mcap", "chunk"),
+        ("mcap", "file"),
+        ("mcap", "none"),
+        ("sqlite3", "file"),
+        ("sqlite3", "none"),
+    ],
+)
+def test_round_trip(tmp_path: Path, storage: str, compression: str) -> None:
     ref = [
         battery_state_message(
             m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
@@ -198,7 +236,7 @@ def test_round_trip(tmp_path: Path, storage: str, compress: bool) -> None:
         for m in _messages(20)
     ]
     write_battery_bag(
-        tmp_path / "b", [(STATE_TOPIC, _messages(20)), (REFERENCE_TOPIC, ref)], storage, compress
+        tmp_path / "b", [(STATE_TOPIC, _messages(20)), (REFERENCE_TOPIC, ref)], storage, compression
     )
     s = read_battery_bag(tmp_path / "b")
     assert len(s) == 20
@@ -206,6 +244,51 @@ def test_round_trip(tmp_path: Path, storage: str, compress: bool) -> None:
     assert np.allclose(s.current_a, 2.0)  # 2 A discharge written as -2 A in ROS
     assert np.allclose(s.voltage_v, 12.5 - 0.001 * np.arange(20), atol=1e-6)  # float32
     assert np.allclose(s.soc_ref, 0.9) and s.reference_capacity_ah == pytest.approx(5.0)
+
+
+def _raw(bag: Path) -> list[tuple[str, int, bytes]]:
+    with Reader(bag) as reader:
+        return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+
+
+def test_default_is_one_chunk_compressed_mcap(tmp_path: Path) -> None:
+    """write_bag's default: one plain ``.mcap`` (no ``.zstd``) whose chunks are zstd, that
+    rosbag2 does not see as compressed; the same messages as an uncompressed bag, and much
+    smaller; a rosbag2 file-compressed MCAP still reads."""
+    for name, compression in (("chunk", None), ("none", "none"), ("file", "file")):
+        topics = [(STATE_TOPIC, _messages(3000))]
+        if compression is None:
+            write_battery_bag(tmp_path / name, topics)
+        else:
+            write_battery_bag(tmp_path / name, topics, compression=compression)
+    files = sorted(f.name for f in (tmp_path / "chunk").iterdir())
+    assert files == ["chunk.mcap", "metadata.yaml"]
+    mcap = tmp_path / "chunk" / "chunk.mcap"
+    raw = mcap.read_bytes()
+    assert raw[:8] == raw[-8:] == b"\x89MCAP0\r\n"
+    assert _mcap_chunk_compressions(mcap) == {"zstd"}
+    info = yaml.safe_load((tmp_path / "chunk" / "metadata.yaml").read_text())
+    info = info["rosbag2_bagfile_information"]
+    assert info["compression_mode"] == "" and info["relative_file_paths"] == ["chunk.mcap"]
+    assert _mcap_chunk_compressions(tmp_path / "none" / "none.mcap") == {""}
+    assert len(raw) < 0.5 * (tmp_path / "none" / "none.mcap").stat().st_size
+    assert sorted(f.name for f in (tmp_path / "file").iterdir()) == [
+        "file.mcap.zstd",
+        "metadata.yaml",
+    ]
+    assert _raw(tmp_path / "chunk") == _raw(tmp_path / "none") == _raw(tmp_path / "file")
+    assert len(_raw(tmp_path / "chunk")) == 3000
+    for name in ("chunk", "file"):
+        s = read_battery_bag(tmp_path / name)
+        assert np.array_equal(s.voltage_v, read_battery_bag(tmp_path / "none").voltage_v)
+
+
+def test_compression_choices(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="sqlite3 has no chunks"):
+        write_battery_bag(tmp_path / "b", [(STATE_TOPIC, _messages(3))], "sqlite3")
+    with pytest.raises(ValueError, match="expected one of chunk, file, none"):
+        write_battery_bag(tmp_path / "b", [(STATE_TOPIC, _messages(3))], compression="gzip")
+    assert not (tmp_path / "b").exists()
 
 
 def test_missing_topic_names_what_exists(tmp_path: Path) -> None:
@@ -231,7 +314,7 @@ def test_not_a_bag(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_truncated_bag(tmp_path: Path, storage: str) -> None:
-    write_battery_bag(tmp_path / "b", [(STATE_TOPIC, _messages(500))], storage, compress=False)
+    write_battery_bag(tmp_path / "b", [(STATE_TOPIC, _messages(500))], storage, compression="none")
     data = next(f for f in (tmp_path / "b").iterdir() if f.name != "metadata.yaml")
     raw = data.read_bytes()
     data.write_bytes(raw[: len(raw) // 3])

@@ -622,6 +622,12 @@ def simulate_bag(spec: BagSpec, capacity_ah: float, pack: Pack) -> dict:
     return {"t": t, "i": i, "v": v, "soc": soc_ref, "temp_c": spec.temp_c}
 
 
+#: MCAP bags: zstd chunks inside a plain .mcap (Foxglove and PlotJuggler open it as is);
+#: sqlite3 has no chunks, its bags stay rosbag2 file-compressed (.db3.zstd).
+COMPRESSION = {"mcap": "chunk", "sqlite3": "file"}
+COMPRESSION_TEXT = {"mcap": "zstd-compressed MCAP chunks", "sqlite3": "zstd file compression"}
+
+
 def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack: Pack) -> dict:
     rng = np.random.default_rng(spec.seed + 1000)
     sensors = SensorModel.draw(rng)
@@ -663,7 +669,10 @@ def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack
     if bag.exists():
         shutil.rmtree(bag)
     write_battery_bag(
-        bag, [(STATE_TOPIC, state), (REFERENCE_TOPIC, reference)], storage=spec.storage
+        bag,
+        [(STATE_TOPIC, state), (REFERENCE_TOPIC, reference)],
+        storage=spec.storage,
+        compression=COMPRESSION[spec.storage],
     )
     dt = np.diff(t)
     meta = {
@@ -709,7 +718,7 @@ def bag_readme(meta: dict) -> str:
   noise {s["current_noise_a"]} A, quantized to {s["current_step_a"]} A; voltage gain error
   {s["voltage_gain"]:+.5f}, noise {s["voltage_noise_v"] * 1000:.1f} mV, 12-bit ADC over 16 V
   ({s["voltage_step_v"] * 1000:.2f} mV steps); temperature noise {s["temperature_noise_c"]} degC.
-- Storage: rosbag2 {meta["storage"]}, zstd file compression. Seed {meta["seed"]}.
+- Storage: rosbag2 {meta["storage"]}, {COMPRESSION_TEXT[meta["storage"]]}. Seed {meta["seed"]}.
 - `/battery/soc_reference` is the simulator's true SoC, not a measurement.
 """
 

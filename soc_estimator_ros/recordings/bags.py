@@ -153,7 +153,7 @@ def write_bag(
     path: Path | str,
     topics: Sequence[tuple[str, str, Iterable[tuple[int, Any]]]],
     storage: str = "mcap",
-    compress: bool = True,
+    compression: str = "chunk",
 ) -> None:
     """Write messages to a new bag.
 
@@ -161,12 +161,23 @@ def write_bag(
         path: the bag directory to create (must not exist).
         topics: ``(topic, message type, (bag time ns, message) pairs)``, each in time order.
         storage: ``"mcap"`` or ``"sqlite3"``.
-        compress: zstd file compression (rosbag2's ``--compression-mode file``).
+        compression: ``"chunk"``: zstd-compressed MCAP chunks in a plain ``.mcap`` that
+            Foxglove and PlotJuggler open as is (MCAP only; metadata.yaml says no compression);
+            ``"file"``: rosbag2's ``--compression-mode file`` (the whole ``.mcap.zstd`` /
+            ``.db3.zstd``); ``"none"``.
     """
     plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    modes = {
+        "chunk": CompressionMode.STORAGE,
+        "file": CompressionMode.FILE,
+        "none": CompressionMode.NONE,
+    }
+    if compression not in modes:
+        raise ValueError(f"compression {compression!r}: expected one of {', '.join(modes)}")
+    if compression == "chunk" and plugin != StoragePlugin.MCAP:
+        raise ValueError(f"{storage} has no chunks: compression 'file' or 'none'")
     writer = Writer(Path(path), version=Writer.VERSION_LATEST, storage_plugin=plugin)
-    if compress:
-        writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+    writer.set_compression(modes[compression], CompressionFormat.ZSTD)
     with writer:
         streams = [
             _tagged(index, writer.add_connection(topic, msgtype, typestore=TYPESTORE), msgtype, m)
@@ -181,7 +192,7 @@ def write_battery_bag(
     path: Path | str,
     topics: Sequence[tuple[str, Iterable[Any]]],
     storage: str = "mcap",
-    compress: bool = True,
+    compression: str = "chunk",
 ) -> None:
     """Write ``BatteryState`` messages to a new bag, each at its header stamp
     (``topics``: ``(topic, messages)`` pairs in stamp order; see :func:`write_bag`)."""
@@ -189,5 +200,5 @@ def write_battery_bag(
         path,
         [(topic, BATTERY_STATE, ((_stamp_ns(m), m) for m in msgs)) for topic, msgs in topics],
         storage,
-        compress,
+        compression,
     )
