@@ -12,13 +12,11 @@ Panasonic NCR18650PF HPPC tests (25 and 0 degC) behind config/li_ion_ncr18650pf.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from soc_estimator_ros.identification.cli import identify_tests  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402

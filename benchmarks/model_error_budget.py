@@ -43,7 +43,6 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.estimators.hybrid import Hybrid  # noqa: E402

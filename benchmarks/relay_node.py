@@ -9,7 +9,6 @@ this machine, before any estimation (README "Benchmarks").
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -18,7 +17,6 @@ from sensor_msgs.msg import BatteryState
 
 def main() -> int:
     rclpy.init(args=sys.argv)
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from soc_estimator_ros.replay.live import RELIABLE
 
     node = rclpy.create_node("soc_relay")

@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import argparse
 import resource
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402

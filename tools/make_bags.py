@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import math
 import shutil
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -41,15 +40,15 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
+from soc_estimator_ros.messages import TECHNOLOGY_BY_CHEMISTRY as TECH  # noqa: E402
+from soc_estimator_ros.messages import bridge_state  # noqa: E402
 from soc_estimator_ros.recordings import (  # noqa: E402
     REFERENCE_TOPIC,
     STATE_TOPIC,
     battery_state_message,
     write_battery_bag,
 )
-from soc_estimator_ros.recordings import TECHNOLOGY_BY_CHEMISTRY as TECH  # noqa: E402
 
 EPOCH_NS = 1_777_881_600 * 1_000_000_000  # 2026-05-04 08:00:00 UTC, fixed for determinism
 SAMPLE_S = 0.1  # the bridge's 10 Hz
@@ -638,30 +637,34 @@ def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack
     stamps = start_ns + np.round(t * 1e9).astype(np.int64)
     state = (
         battery_state_message(
-            int(s),
-            float(vm),
-            float(im),
-            temperature_c=float(tm),
-            design_capacity_ah=pack.pack_capacity_ah,
-            technology=pack.technology,
-            location="seeder_robot",
-            serial_number=pack.serial,
+            bridge_state(
+                int(s),
+                float(vm),
+                float(im),
+                temperature_c=float(tm),
+                design_capacity_ah=pack.pack_capacity_ah,
+                technology=pack.technology,
+                location="seeder_robot",
+                serial_number=pack.serial,
+            )
         )
         for s, vm, im, tm in zip(stamps, v_m, i_m, temp_m, strict=True)
     )
     reference = (
         battery_state_message(
-            int(s),
-            float(vt),
-            float(it),
-            temperature_c=float(tt),
-            percentage=float(sc),
-            charge_ah=float(sc * capacity_ah),
-            capacity_ah=capacity_ah,
-            design_capacity_ah=pack.pack_capacity_ah,
-            technology=pack.technology,
-            location="simulator_truth",
-            serial_number=pack.serial,
+            bridge_state(
+                int(s),
+                float(vt),
+                float(it),
+                temperature_c=float(tt),
+                percentage=float(sc),
+                charge_ah=float(sc * capacity_ah),
+                capacity_ah=capacity_ah,
+                design_capacity_ah=pack.pack_capacity_ah,
+                technology=pack.technology,
+                location="simulator_truth",
+                serial_number=pack.serial,
+            )
         )
         for s, vt, it, tt, sc in zip(stamps, v, i, temp, soc, strict=True)
     )

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT
 
 from soc_estimator_ros.estimators import make_estimator
 from soc_estimator_ros.evaluation import Accuracy, accuracy, run_estimator
 from soc_estimator_ros.params import load_battery_params
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 BAGS = ROOT / "bags"
 BATTERY_FILES = {
     "sla": ROOT / "config" / "sla_12v5ah.yaml",
@@ -41,7 +42,7 @@ def chemistry_of(bag: Path) -> str:
 
 @cache
 def series_of(bag: Path):
-    from soc_estimator_ros.bag_io import read_battery_bag
+    from soc_estimator_ros.recordings import read_battery_bag
 
     return read_battery_bag(bag)
 

@@ -12,22 +12,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import REPO_ROOT
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from rosbags.rosbag2.storage_mcap import McapReader
 
-from soc_estimator_ros.bag_io import (
+from soc_estimator_ros.messages import TECHNOLOGY_BY_CHEMISTRY, TYPESTORE, bridge_state
+from soc_estimator_ros.recordings import (
     REFERENCE_TOPIC,
     STATE_TOPIC,
-    TECHNOLOGY_BY_CHEMISTRY,
-    TYPESTORE,
     RecordingError,
     battery_state_message,
     read_battery_bag,
     write_battery_bag,
 )
 
-BAGS = Path(__file__).resolve().parents[1] / "bags"
+BAGS = REPO_ROOT / "bags"
 ALL = sorted(p.parent for p in BAGS.glob("*/bag.yaml"))
 
 
@@ -209,7 +209,9 @@ def test_voltage_answers_current_steps_in_the_same_sample(bag: Path) -> None:
 # -- bag_io on small bags written here -------------------------------------------------------
 def _messages(n: int, t0_ns: int = 1_000_000_000):
     return [
-        battery_state_message(t0_ns + k * 100_000_000, 12.5 - 0.001 * k, 2.0, temperature_c=20.0)
+        battery_state_message(
+            bridge_state(t0_ns + k * 100_000_000, 12.5 - 0.001 * k, 2.0, temperature_c=20.0)
+        )
         for k in range(n)
     ]
 
@@ -227,11 +229,13 @@ def _messages(n: int, t0_ns: int = 1_000_000_000):
 def test_round_trip(tmp_path: Path, storage: str, compression: str) -> None:
     ref = [
         battery_state_message(
-            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
-            12.5,
-            2.0,
-            percentage=0.9,
-            capacity_ah=5.0,
+            bridge_state(
+                m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
+                12.5,
+                2.0,
+                percentage=0.9,
+                capacity_ah=5.0,
+            )
         )
         for m in _messages(20)
     ]
@@ -293,7 +297,9 @@ def test_compression_choices(tmp_path: Path) -> None:
 
 def test_missing_topic_names_what_exists(tmp_path: Path) -> None:
     write_battery_bag(tmp_path / "b", [("/other", _messages(5))])
-    with pytest.raises(RecordingError, match=r"no topic /battery/state \(topics in the bag: /other\)"):
+    with pytest.raises(
+        RecordingError, match=r"no topic /battery/state \(topics in the bag: /other\)"
+    ):
         read_battery_bag(tmp_path / "b")
 
 

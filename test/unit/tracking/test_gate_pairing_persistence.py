@@ -8,11 +8,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import REPO_ROOT
 
-from soc_estimator_ros.input_gate import REJECTIONS, GateConfig, InputGate, Verdict
-from soc_estimator_ros.pairing import ScalarPairer
 from soc_estimator_ros.params import load_battery_params
-from soc_estimator_ros.persistence import (
+from soc_estimator_ros.tracking.gate import REJECTIONS, GateConfig, InputGate, Verdict
+from soc_estimator_ros.tracking.pairing import ScalarPairer
+from soc_estimator_ros.tracking.persistence import (
     SavedState,
     StateFileError,
     load_state,
@@ -20,7 +21,6 @@ from soc_estimator_ros.persistence import (
     save_state,
 )
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 SLA = REPO_ROOT / "config" / "sla_12v5ah.yaml"
 S = 1_000_000_000  # ns per s
 T0 = 1_778_151_600 * S

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import REPO_ROOT
 
 from soc_estimator_ros.models import SurfaceLag
 from soc_estimator_ros.params import (
@@ -17,7 +18,7 @@ from soc_estimator_ros.params import (
     parse_battery_params,
 )
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = REPO_ROOT / "config"
 # Battery files (the node's ROS params file, soc_estimator_node.yaml, lives beside them).
 BUNDLED = sorted(p for p in CONFIG.glob("*.yaml") if "schema_version" in p.read_text())
 

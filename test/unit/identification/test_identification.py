@@ -14,9 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import bag_path, load_benchmark
+from conftest import REPO_ROOT, bag_path, load_benchmark
 
-from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.identification.cli import main as identify_main
 from soc_estimator_ros.identification.fit import fit_pulse
@@ -44,8 +43,9 @@ from soc_estimator_ros.models import (
     TheveninParams,
 )
 from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.recordings import BatterySeries, read_battery_bag
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 SLA = load_battery_params(ROOT / "config" / "sla_12v5ah.yaml")
 TRUE = {"r0": 0.030, "r1": 0.012, "tau1": 25.0, "r2": 0.020, "tau2": 700.0}
 

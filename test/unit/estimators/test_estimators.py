@@ -8,11 +8,10 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_benchmark
+from conftest import REPO_ROOT, load_benchmark
 from filterpy.kalman import KalmanFilter
 
 from soc_estimator_ros.estimators import (
@@ -32,7 +31,7 @@ from soc_estimator_ros.models import (
 )
 from soc_estimator_ros.params import OcvTable, load_battery_params
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+CONFIG_DIR = REPO_ROOT / "config"
 
 SLA = load_battery_params(CONFIG_DIR / "sla_12v5ah.yaml")
 LFP = load_battery_params(CONFIG_DIR / "lfp_12v6ah.yaml")
@@ -318,8 +317,8 @@ def test_the_ukf_floor_benchmark_computes_what_t2rc_ukf_computes() -> None:
     run 1 (kinetic and saturating tables at two temperatures, a start at full that clips) it
     follows t2rc_ukf to rounding: 1e-10 of SoC (measured 8e-15 over the whole run; the two
     differ only in the order of a few sums and the symmetrization of P)."""
-    from soc_estimator_ros.bag_io import read_battery_bag
     from soc_estimator_ros.evaluation import run_estimator
+    from soc_estimator_ros.recordings import read_battery_bag
 
     bag = CONFIG_DIR.parent / "bags" / "sla_field_run_1_full_rest"
     if not bag.exists():
@@ -337,7 +336,7 @@ def test_the_model_error_budget_scales_the_models_own_error() -> None:
     v_exact + lam (v_bag - v_exact), v_exact the file's model on the true SoC plus the ADC's
     2 mV noise. At lam = 1 that must be the bag (to rounding), at lam = 0 the model within the
     noise, and the error in between the bag's error times lam."""
-    from soc_estimator_ros.bag_io import read_battery_bag
+    from soc_estimator_ros.recordings import read_battery_bag
 
     bag = CONFIG_DIR.parent / "bags" / "lfp_field_run_2_partial"
     if not bag.exists():

@@ -12,15 +12,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import bag_path
+from conftest import REPO_ROOT, bag_path
 from rosbags.highlevel import AnyReader
 
-from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag, write_battery_bag
 from soc_estimator_ros.estimators import make_estimator
 from soc_estimator_ros.evaluation import run_estimator
-from soc_estimator_ros.outputs import decode_estimate
+from soc_estimator_ros.messages import bridge_state, decode_estimate
 from soc_estimator_ros.params import load_battery_params
-from soc_estimator_ros.replay import main as replay_main
+from soc_estimator_ros.recordings import (
+    battery_state_message,
+    read_battery_bag,
+    write_battery_bag,
+)
+from soc_estimator_ros.replay.cli import main as replay_main
+from soc_estimator_ros.series import BatterySeries
+from soc_estimator_ros.tracking import TrackerConfig
 
 N = 3000
 
@@ -30,14 +36,15 @@ def excerpt() -> BatterySeries:
     return read_battery_bag(bag_path("sla_field_run_1_full_rest")).window(0, N)
 
 
-def write_excerpt(path: Path) -> Path:
+def write_excerpt(path: Path, voltage_v: np.ndarray | None = None) -> Path:
     s = excerpt()
     assert s.soc_ref is not None
+    voltage = s.voltage_v if voltage_v is None else voltage_v
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["time_s", "current_a", "voltage_v", "temperature_c", "soc_ref"])
         for row in zip(
-            s.stamp_ns * 1e-9, s.current_a, s.voltage_v, s.temperature_c, s.soc_ref, strict=True
+            s.stamp_ns * 1e-9, s.current_a, voltage, s.temperature_c, s.soc_ref, strict=True
         ):
             w.writerow([repr(float(v)) for v in row])
     return path
@@ -51,7 +58,7 @@ def run(args: list[str], capsys) -> tuple[int, str, str]:
 
 def test_output_bag_holds_the_input_and_the_estimates_at_the_input_stamps(tmp_path, capsys):
     src = write_excerpt(tmp_path / "run.csv")
-    params = ["--params", str(Path(__file__).parents[1] / "config" / "sla_12v5ah.yaml")]
+    params = ["--params", str(REPO_ROOT / "config" / "sla_12v5ah.yaml")]
     bag = tmp_path / "out_bag"
     est_csv = tmp_path / "est.csv"
     code, out, _ = run(
@@ -118,9 +125,7 @@ def test_progress_goes_to_stderr_only(tmp_path, capsys):
 
 def test_unusable_bags_give_one_clear_line(tmp_path, capsys):
     s = excerpt()
-    from soc_estimator_ros.bag_io import battery_state_message
-
-    msgs = [battery_state_message(int(t), 12.0, 1.0) for t in s.stamp_ns[:20]]
+    msgs = [battery_state_message(bridge_state(int(t), 12.0, 1.0)) for t in s.stamp_ns[:20]]
     write_battery_bag(tmp_path / "other_topic", [("/bms/state", msgs)])
     code, _, err = run([str(tmp_path / "other_topic"), "--params", str(_sla())], capsys)
     assert code == 2 and "/battery/state" in err and "/bms/state" in err
@@ -131,16 +136,18 @@ def test_unusable_bags_give_one_clear_line(tmp_path, capsys):
 
 
 def _sla() -> Path:
-    return Path(__file__).parents[1] / "config" / "sla_12v5ah.yaml"
+    return REPO_ROOT / "config" / "sla_12v5ah.yaml"
 
 
 def test_live_replay_equals_the_offline_replay_sample_for_sample(tmp_path, capsys):
     """The same samples through a running soc_estimator_node (sim time, lock-step): the node
     runs the same estimator code on the same float64 inputs, so the estimate vector (float64)
     agrees to rounding, 1e-12; the CSVs, which keep 6 significant digits, agree exactly."""
-    from soc_estimator_ros.live_replay import replay_live
+    from soc_estimator_ros.replay.live import replay_live
 
-    live = replay_live(excerpt(), _sla(), "hybrid", float(excerpt().soc_ref[0]), 0.1)
+    soc0 = float(excerpt().soc_ref[0])
+    config = TrackerConfig(estimator="hybrid", initial_soc=soc0, initial_soc_std=0.1)
+    live, _ = replay_live(excerpt(), _sla(), config)
     offline = run_estimator(
         make_estimator("hybrid", load_battery_params(_sla()), float(excerpt().soc_ref[0]), 0.1),
         excerpt(),
@@ -161,4 +168,38 @@ def test_live_replay_equals_the_offline_replay_sample_for_sample(tmp_path, capsy
         assert code == 0
         outs.append((out.read_text(), text))
     assert outs[0][0] == outs[1][0]
-    assert outs[0][1].splitlines()[:-1] == outs[1][1].splitlines()[:-1]  # the same table
+    assert outs[0][1].splitlines()[:2] == outs[1][1].splitlines()[:2]  # the same table
+
+
+def test_bad_samples_are_rejected_counted_and_the_run_stays_finite(tmp_path, capsys):
+    """40 NaN voltages in a run: today's replay gave NaN for every SoC after the first one and
+    exit 0; through the tracker they are rejected, counted and printed, as the node does."""
+    voltage = excerpt().voltage_v.copy()
+    voltage[np.arange(100, 2900, 70)] = np.nan  # 40 samples
+    src = write_excerpt(tmp_path / "nan.csv", voltage)
+    out_csv = tmp_path / "est.csv"
+    code, out, _ = run([str(src), "--params", str(_sla()), "--output", str(out_csv)], capsys)
+    assert code == 0
+    assert "non_finite 40" in out
+    with out_csv.open() as fh:
+        soc = np.array([float(r["soc"]) for r in csv.DictReader(fh)])
+    assert np.all(np.isfinite(soc))
+
+
+def test_a_run_without_a_finite_estimate_is_an_error(tmp_path, capsys):
+    voltage = np.full(N, np.nan)  # every sample rejected: no estimate at all
+    src = write_excerpt(tmp_path / "all_nan.csv", voltage)
+    code, _, err = run([str(src), "--params", str(_sla())], capsys)
+    assert code == 2 and "not finite" in err and err.count("\n") == 1
+
+
+def test_replay_starts_as_the_node_does_and_says_so(tmp_path, capsys):
+    """Without --initial-soc the start is the OCV of the first accepted sample (the node's
+    start), printed; 'ref' takes the reference, a number itself."""
+    src = write_excerpt(tmp_path / "run.csv")
+    code, out, _ = run([str(src), "--params", str(_sla())], capsys)
+    assert code == 0 and "initial_soc=ocv: SoC" in out
+    code, out, _ = run([str(src), "--params", str(_sla()), "--initial-soc", "ref"], capsys)
+    assert code == 0 and f"initial SoC {float(excerpt().soc_ref[0]):.4f} (given)" in out
+    code, _, err = run([str(src), "--params", str(_sla()), "--initial-soc", "1.5"], capsys)
+    assert code == 2 and "fraction" in err

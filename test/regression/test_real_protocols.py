@@ -17,9 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import REPO_ROOT
 
-from soc_estimator_ros.bag_io import RecordingError, BatterySeries, read_csv
-from soc_estimator_ros.conventions import CurrentSign
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.identification.cli import main as identify_main
 from soc_estimator_ros.identification.fit import charge_removed_ah, step_current_a
@@ -27,8 +26,10 @@ from soc_estimator_ros.identification.identify import identify, ocv_shift_v
 from soc_estimator_ros.identification.segment import find_windows, start_after_last_charge
 from soc_estimator_ros.models import OcvCurve, ParamTable, RcBranch, TheveninModel, TheveninParams
 from soc_estimator_ros.params import OcvTable, load_battery_params
+from soc_estimator_ros.recordings import BatterySeries, RecordingError, read_csv
+from soc_estimator_ros.units import CurrentSign
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 LI_ION = load_battery_params(ROOT / "config" / "li_ion_ncr18650pf.yaml")
 OCV = OcvCurve([0.0, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0], [3.0, 3.35, 3.55, 3.66, 3.86, 4.06, 4.17])
 CAPACITY_AH = 2.8

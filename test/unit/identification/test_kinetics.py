@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT
 
-from soc_estimator_ros.bag_io import BatterySeries
 from soc_estimator_ros.identification.identify import rate_test_fits
 from soc_estimator_ros.identification.kinetics import rate_steps, with_kinetics
 from soc_estimator_ros.identification.segment import IdentificationError
@@ -20,8 +19,9 @@ from soc_estimator_ros.params import (
     load_battery_params,
     parse_battery_params,
 )
+from soc_estimator_ros.recordings import BatterySeries
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+CONFIG_DIR = REPO_ROOT / "config"
 SLA = load_battery_params(CONFIG_DIR / "sla_12v5ah.yaml")
 SOC_GRID = (0.2, 0.5, 0.8, 1.0)
 # Known kinetics, shaped like PyBaMM's SLA pack (a ~ 6 cells x 2RT/F x 1.5, i0 ~ 1 A).

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -37,23 +38,22 @@ from sensor_msgs.msg import BatteryState  # noqa: E402
 from std_msgs.msg import Float32  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from soc_estimator_ros.bag_io import BatterySeries, read_battery_bag  # noqa: E402
-from soc_estimator_ros.conventions import ros_current_from_core  # noqa: E402
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
-from soc_estimator_ros.input_gate import Verdict  # noqa: E402
-from soc_estimator_ros.live_replay import (  # noqa: E402
+from soc_estimator_ros.messages import decode_estimate, estimate_labels  # noqa: E402
+from soc_estimator_ros.node.ros_node import SocEstimatorNode, main  # noqa: E402
+from soc_estimator_ros.params import load_battery_params  # noqa: E402
+from soc_estimator_ros.recordings import BatterySeries, read_battery_bag  # noqa: E402
+from soc_estimator_ros.replay.live import (  # noqa: E402
     NodeLink,
     series_messages,
     start_node,
     state_message,
 )
-from soc_estimator_ros.node import SocEstimatorNode, main  # noqa: E402
-from soc_estimator_ros.outputs import decode_estimate, estimate_labels  # noqa: E402
-from soc_estimator_ros.params import load_battery_params  # noqa: E402
-from soc_estimator_ros.persistence import SavedState, load_state, save_state  # noqa: E402
+from soc_estimator_ros.tracking.gate import Verdict  # noqa: E402
+from soc_estimator_ros.tracking.persistence import SavedState, load_state, save_state  # noqa: E402
+from soc_estimator_ros.units import ros_current_from_core  # noqa: E402
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 SLA = REPO_ROOT / "config" / "sla_12v5ah.yaml"
 S = 1_000_000_000
 T0 = 1_778_151_600 * S
@@ -197,7 +197,7 @@ def test_replay_matches_the_offline_estimator_sample_for_sample(make_harness, sl
             assert m.power_supply_health == BatteryState.POWER_SUPPLY_HEALTH_DEAD
     # The estimate vector is labelled and sized for the hybrid state.
     labels = h.est[-1].layout.dim[0].label.removeprefix("fields:").split(",")
-    assert labels == estimate_labels(h.node.estimator.state_names)
+    assert labels == estimate_labels(h.node.tracker.estimator.state_names)
     assert len(h.est[-1].data) == len(labels) == 7 + 4 + 16  # 7 scalars, x and P of 4 states
     assert decode_estimate(h.est[-1])["stamp_s"] == pytest.approx(sla_run.stamp_ns[n - 1] * 1e-9)
 
@@ -211,18 +211,18 @@ def test_switching_estimator_keeps_the_soc_and_refuses_unknown_names(
     h = make_harness(estimator="hybrid", initial_soc=repr(soc0))
     msgs = series_msgs(sla_run, n1 + n2)
     h.send(msgs[:n1])
-    soc_before = h.node.estimator.soc
+    soc_before = h.node.tracker.estimator.soc
     assert soc_before == pytest.approx(h.soc[-1].percentage, abs=1e-6)
 
     results = h.set_params(estimator="coulomb")
     assert results[0].successful, results[0].reason
-    assert h.node.estimator.name == "coulomb"
-    assert abs(h.node.estimator.soc - soc_before) <= 1e-6  # no jump at the switch
+    assert h.node.tracker.estimator.name == "coulomb"
+    assert abs(h.node.tracker.estimator.soc - soc_before) <= 1e-6  # no jump at the switch
 
     refused = h.set_params(estimator="kalman_magic")
     assert not refused[0].successful and "unknown estimator" in refused[0].reason
     assert h.node.get_parameter("estimator").value == "coulomb"
-    assert h.node.estimator.name == "coulomb"
+    assert h.node.tracker.estimator.name == "coulomb"
 
     h.send(msgs[n1:])
     # Offline: hybrid for n1 samples, then coulomb continuing its run.
@@ -258,8 +258,8 @@ def test_reset_from_ocv_service_and_reset_parameter(make_harness, battery):
     assert resp.success, resp.message
     v_rest = float(np.float32(12.45))  # what a float32 message carries
     ocv_soc, ocv_std = battery.ocv_curve().soc_at_with_std(v_rest, 0.05)
-    assert h.node.estimator.soc == pytest.approx(ocv_soc, abs=1e-9)
-    assert h.node.estimator.soc_var == pytest.approx(max(ocv_std, 1e-3) ** 2, rel=1e-9)
+    assert h.node.tracker.estimator.soc == pytest.approx(ocv_soc, abs=1e-9)
+    assert h.node.tracker.estimator.soc_var == pytest.approx(max(ocv_std, 1e-3) ** 2, rel=1e-9)
     h.send([state_msg(T0 + 2 * S + k * S // 10, 12.45, 0.0) for k in range(5)])
     assert h.soc[-1].percentage == pytest.approx(ocv_soc, abs=0.02)
 
@@ -268,13 +268,13 @@ def test_reset_from_ocv_service_and_reset_parameter(make_harness, battery):
 
     results = h.set_params(reset_soc_to=0.42)
     assert results[0].successful
-    assert h.node.estimator.soc == pytest.approx(0.42)
-    assert h.node.estimator.soc_var == pytest.approx(0.02**2)
+    assert h.node.tracker.estimator.soc == pytest.approx(0.42)
+    assert h.node.tracker.estimator.soc_var == pytest.approx(0.02**2)
     h.send([state_msg(T0 + 4 * S, 12.0, 0.0)])
     assert h.soc[-1].percentage == pytest.approx(0.42, abs=0.01)
     bad = h.set_params(reset_soc_to=1.5)
     assert not bad[0].successful
-    assert h.node.estimator.soc == pytest.approx(h.soc[-1].percentage, abs=1e-6)
+    assert h.node.tracker.estimator.soc == pytest.approx(h.soc[-1].percentage, abs=1e-6)
 
 
 # -- 4. persistence --------------------------------------------------------------------------
@@ -282,7 +282,7 @@ def test_state_is_saved_on_shutdown_and_resumed(make_harness, tmp_path, battery)
     state_file = tmp_path / "state.yaml"
     a = make_harness(estimator="hybrid", initial_soc="0.9", state_file=str(state_file))
     a.send([state_msg(T0 + k * S // 10, 12.3, 2.0) for k in range(50)])
-    soc_a, var_a = a.node.estimator.soc, a.node.estimator.soc_var
+    soc_a, var_a = a.node.tracker.estimator.soc, a.node.tracker.estimator.soc_var
     a.close()  # destroy_node saves
     saved = load_state(state_file)
     assert saved.soc == soc_a and saved.soc_var == var_a
@@ -338,13 +338,13 @@ def test_bad_inputs_are_rejected_counted_and_harmless(make_harness):
         Verdict.NOT_PRESENT: [state_msg(newest + S // 10, 12.3, 1.5, present=False)],
         Verdict.CURRENT_RANGE: [state_msg(newest + S // 10, 12.3, 500.0)],
     }
-    est = h.node.estimator
+    est = h.node.tracker.estimator
     x0, p0, t0 = est.x.copy(), est.p.copy(), est.t_last_s
     outputs = len(h.soc)
     for verdict, msgs in bad.items():
         h.send(msgs, expect_outputs=False)
-        assert h.node.gate.counts[verdict] == len(msgs), verdict
-        assert h.node.estimator is est
+        assert h.node.tracker.gate.counts[verdict] == len(msgs), verdict
+        assert h.node.tracker.estimator is est
         np.testing.assert_array_equal(est.x, x0)
         np.testing.assert_array_equal(est.p, p0)
         assert est.t_last_s == t0
@@ -389,7 +389,7 @@ def test_diagnostics_levels(make_harness, battery):
 def test_source_clock_jumping_back_is_followed_after_the_stale_timeout(make_harness):
     h = make_harness(estimator="coulomb", initial_soc="0.8", stale_timeout_s=0.3)
     h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(10)])
-    soc_before = h.node.estimator.soc
+    soc_before = h.node.tracker.estimator.soc
     restarted = T0 - 3600 * S  # the bridge restarted with its clock an hour behind
     k = 0
     while len(h.soc) == 10 and k < 50:
@@ -397,7 +397,7 @@ def test_source_clock_jumping_back_is_followed_after_the_stale_timeout(make_harn
         h.spin_for(0.05)
         k += 1
     assert len(h.soc) == 11, "the node never accepted the new time line"
-    assert h.node.gate.counts[Verdict.STALE] >= 3
+    assert h.node.tracker.gate.counts[Verdict.STALE] >= 3
     # The estimate continued (a coulomb step over the real elapsed time), it was not reset.
     assert abs(h.soc[-1].percentage - soc_before) < 1e-3
     h.send([state_msg(restarted + (k + 1) * S // 10, 12.3, 1.0)])
@@ -419,7 +419,7 @@ def test_use_sim_time_and_publish_rate(make_harness):
 
     advance_to(T0)
     h.send([state_msg(T0 + k * S // 100, 12.3, 1.0) for k in range(5)], expect_outputs=False)
-    assert h.node.gate.accepted_count == 5
+    assert h.node.tracker.gate.accepted_count == 5
     for k in range(1, 6):  # 0.5 s of simulated time: the 10 Hz timer fires, one new estimate
         advance_to(T0 + k * S // 10)
     assert h.spin_until(lambda: len(h.soc) >= 1, 2.0)
@@ -446,7 +446,7 @@ def test_100hz_stream_loses_nothing(make_harness, battery):
     assert len(h.soc) == n and len(h.est) == n
     stamps = [m.header.stamp.sec * S + m.header.stamp.nanosec for m in h.soc]
     assert stamps == [T0 + k * 10_000_000 for k in range(n)]
-    assert h.node.gate.rejected_count == 0
+    assert h.node.tracker.gate.rejected_count == 0
     print(f"6000 samples in {elapsed:.1f} s ({n / elapsed:.0f} samples/s)")
 
 
@@ -477,7 +477,7 @@ def test_separate_current_and_voltage_topics_are_paired(make_harness):
 
 # -- start-up, parameters file, command line, launch -----------------------------------------
 def test_bad_configuration_is_refused(ctx, tmp_path):
-    from soc_estimator_ros.node import NodeConfigError
+    from soc_estimator_ros.node.ros_node import NodeConfigError
 
     for params, match in [
         ({"initial_soc": "full"}, "initial_soc"),
