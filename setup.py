@@ -7,7 +7,7 @@ from setuptools import find_packages, setup
 PACKAGE = "soc_estimator_ros"
 
 # The one list of executables (installed to lib/soc_estimator_ros/ for `ros2 run`, see
-# setup.cfg); test/test_colcon_build.py checks that each one starts (`--help`).
+# setup.cfg); test/packaging/test_colcon_build.py checks that each one starts (`--help`).
 CONSOLE_SCRIPTS = [
     "soc_replay = soc_estimator_ros.replay.cli:main",
     "soc_identify = soc_estimator_ros.identification.cli:main",

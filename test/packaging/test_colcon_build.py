@@ -3,6 +3,8 @@
 ros2cli is not installed by the two-command set-up, so this checks what `ros2 run` relies on:
 the ament index entry, the share/ files, and each console script declared in setup.py sitting in
 lib/soc_estimator_ros/ and starting (``--help``) in the environment ``local_setup.bash`` makes.
+Then ``soc_replay`` and ``soc_identify`` run on bundled bags from the install, in a directory
+outside the checkout: they must find the bundled battery files under the install's share/.
 """
 
 from __future__ import annotations
@@ -16,8 +18,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import bag_path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.resources import BUNDLED_FILES
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = "soc_estimator_ros"
 COLCON = Path(sys.executable).with_name("colcon")
 # What an ament_python package needs to build; everything else (bags, tests, .venv) stays out.
@@ -77,13 +83,33 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return ws
 
 
-def _run_in_install(ws: Path, command: str) -> subprocess.CompletedProcess[str]:
-    """Run a shell command after sourcing install/local_setup.bash, as a robot's shell would."""
+def _run_in_install(
+    ws: Path, command: str, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    """Run a shell command after sourcing install/local_setup.bash, as a robot's shell would.
+
+    The checkout is not on PYTHONPATH and ``cwd`` (default: the workspace) is outside it.
+    """
     script = f'source "{ws}/install/local_setup.bash" && {command}'
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH")}
     return subprocess.run(
-        ["bash", "-c", script], cwd=ws, env=env, capture_output=True, text=True, timeout=120
+        ["bash", "-c", script],
+        cwd=cwd or ws,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
     )
+
+
+def _installed_config(ws: Path) -> Path:
+    return ws / "install" / PACKAGE / "share" / PACKAGE / "config"
+
+
+def _assert_no_checkout_config(text: str) -> None:
+    checkout_config = str(REPO_ROOT / "config")
+    assert checkout_config not in text, f"the checkout's {checkout_config} was used:\n{text}"
 
 
 def test_setup_declares_console_scripts() -> None:
@@ -134,3 +160,36 @@ def test_console_script_runs_from_lib(workspace: Path, script: str) -> None:
     out = _run_in_install(workspace, f'"{exe}" --help')
     assert out.returncode == 0, f"{script} --help exited {out.returncode}:\n{out.stderr[-3000:]}"
     assert "usage" in out.stdout.lower(), out.stdout[-2000:]
+
+
+def test_installed_config_dir_is_the_share_copy(workspace: Path, tmp_path: Path) -> None:
+    code = "from soc_estimator_ros.resources import config_dir; print(config_dir())"
+    out = _run_in_install(workspace, f'"{sys.executable}" -c "{code}"', cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    found = Path(out.stdout.strip().splitlines()[-1])
+    assert found.resolve() == _installed_config(workspace).resolve(), found
+
+
+def test_installed_soc_replay_runs_a_bag(workspace: Path, tmp_path: Path) -> None:
+    bag = bag_path("sla_field_run_2_partial")
+    exe = workspace / "install" / PACKAGE / "lib" / PACKAGE / "soc_replay"
+    out = _run_in_install(workspace, f'"{exe}" "{bag}" --estimator coulomb', cwd=tmp_path)
+    assert out.returncode == 0, f"soc_replay exited {out.returncode}:\n{out.stderr[-3000:]}"
+    header = out.stdout.splitlines()[0].split()
+    assert header[:3] == ["input", "estimator", "MAE%"], out.stdout[-2000:]
+    assert any(line.split()[:2] == [bag.name, "coulomb"] for line in out.stdout.splitlines())
+    _assert_no_checkout_config(out.stdout + out.stderr)
+
+
+def test_installed_soc_identify_uses_the_bundled_template(workspace: Path, tmp_path: Path) -> None:
+    bag = bag_path("sla_pulse_test")
+    exe = workspace / "install" / PACKAGE / "lib" / PACKAGE / "soc_identify"
+    output = tmp_path / "id.yaml"
+    command = f'"{exe}" "{bag}" --chemistry sla --output "{output}"'
+    out = _run_in_install(workspace, command, cwd=tmp_path)
+    assert out.returncode == 0, f"soc_identify exited {out.returncode}:\n{out.stderr[-3000:]}"
+    _assert_no_checkout_config(out.stdout + out.stderr + output.read_text(encoding="utf-8"))
+    params = load_battery_params(output)
+    # Not identified, so taken from the default template (the bundled SLA file).
+    template = load_battery_params(_installed_config(workspace) / BUNDLED_FILES["sla"])
+    assert params.name == template.name

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import yaml
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = "soc_estimator_ros"
 
 # Python top-level module -> rosdep key that provides it. Extend when the code imports something
@@ -122,7 +122,7 @@ def test_every_import_is_a_declared_dependency() -> None:
             if key is None:
                 problems.append(
                     f"{rel} imports {module!r}: add its rosdep key to ROSDEP_KEY in "
-                    f"test/test_package_manifest.py and an <exec_depend> to package.xml"
+                    f"test/packaging/test_package_manifest.py and an <exec_depend> to package.xml"
                 )
             elif key not in declared:
                 problems.append(f"{rel} imports {module!r}: add <exec_depend>{key}</exec_depend>")
