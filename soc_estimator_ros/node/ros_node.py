@@ -295,9 +295,13 @@ class SocEstimatorNode(Node):
                 if last is not None and now - last < REJECTION_LOG_PERIOD_S:
                     continue
                 self._log_times[event.key] = now
-            {Level.INFO: log.info, Level.WARNING: log.warning, Level.ERROR: log.error}[event.level](
-                event.message
-            )
+            # One call site per severity: rclpy ties a call site to one severity.
+            if event.level is Level.ERROR:
+                log.error(event.message)
+            elif event.level is Level.WARNING:
+                log.warning(event.message)
+            else:
+                log.info(event.message)
 
     # -- outputs ------------------------------------------------------------------------------
     def _on_publish_timer(self) -> None:

@@ -475,9 +475,46 @@ def test_separate_current_and_voltage_topics_are_paired(make_harness):
     assert h.node.pairer is not None and h.node.pairer.paired == 10
 
 
+def test_a_stamp_a_day_ahead_is_rejected_and_the_stream_goes_on(make_harness, tmp_path):
+    """One sample stamped a day in the future: before, the node integrated the day (SoC 0.70
+    -> 0.00, through 2 800 good samples) and saved a state it then refused to load."""
+    h = make_harness(estimator="coulomb", initial_soc="0.7")
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(20)])
+    h.send([state_msg(T0 + 20 * S // 10 + 86_400 * S, 12.3, 1.0)], expect_outputs=False)
+    assert h.node.tracker.gate.counts[Verdict.TIME_JUMP] == 1
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(21, 321)])
+    assert len(h.soc) == 320
+    # 32 s at 1 A on 5 Ah: 0.0018 of SoC; the day (a whole 5 Ah at 0.2 A) is nowhere.
+    expected = 0.7 - 319 * 0.1 / 3600 / h.node.battery.capacity_ah
+    assert h.soc[-1].percentage == pytest.approx(expected, abs=1e-4)  # 1e-4: the skipped 0.1 s
+    assert h.node.save_now(force=True)
+    assert load_state(tmp_path / "state.yaml").soc == pytest.approx(expected, abs=1e-4)
+
+
+def test_temp_files_left_by_a_kill_are_removed_at_start(ctx, tmp_path):
+    state = tmp_path / "state.yaml"
+    stale = tmp_path / ".state.yaml.abc123.tmp"
+    stale.write_text("soc: 0.5")  # what a kill during the atomic save leaves
+    node = start_node(ctx, f"/t_{uuid.uuid4().hex[:8]}", state_file=str(state))
+    try:
+        assert not stale.exists()
+    finally:
+        node.destroy_node()
+
+
+def test_a_binary_battery_file_is_one_line_not_a_traceback(ctx, tmp_path, capsys):
+    binary = tmp_path / "pack.yaml"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00\x01")
+    from soc_estimator_ros.params import ParamFileError
+
+    with pytest.raises(ParamFileError, match="UTF-8") as info:
+        start_node(ctx, f"/t_{uuid.uuid4().hex[:8]}", battery_file=str(binary))
+    assert "\n" not in str(info.value)
+
+
 # -- start-up, parameters file, command line, launch -----------------------------------------
 def test_bad_configuration_is_refused(ctx, tmp_path):
-    from soc_estimator_ros.node.ros_node import NodeConfigError
+    from soc_estimator_ros.node.parameters import NodeConfigError
 
     for params, match in [
         ({"initial_soc": "full"}, "initial_soc"),
@@ -515,7 +552,7 @@ def test_help_exits_zero_without_ros(capsys):
     assert main(["--help"]) == 0
     assert "usage:" in capsys.readouterr().out
     out = subprocess.run(
-        [sys.executable, "-m", "soc_estimator_ros.node", "--help"],
+        [sys.executable, "-m", "soc_estimator_ros.node.ros_node", "--help"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -533,7 +570,7 @@ def node_process(ctx, state_file: Path):
     of the next sample to send: samples ``T0 + k * S // 10`` for k below it are sent)."""
     ns = f"/p_{uuid.uuid4().hex[:8]}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "soc_estimator_ros.node", "--ros-args",
+        [sys.executable, "-m", "soc_estimator_ros.node.ros_node", "--ros-args",
          "-r", f"__ns:={ns}", "-p", f"state_file:={state_file}", "-p", "initial_soc:=0.8",
          "-p", "input_reliability:=reliable", "-p", "estimator:=coulomb"],
         cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -613,7 +650,7 @@ def test_main_takes_a_publish_racing_the_sigint_shutdown_as_a_clean_stop(tmp_pat
     RCLError (a RuntimeError); or the context goes down a moment after the executor failed.
     main() returns 0, as on any stop; the same error with the context still up after the grace
     is a fault and propagates."""
-    import soc_estimator_ros.node as node_mod
+    import soc_estimator_ros.node.ros_node as node_mod
 
     def spin_into_the_race(node):
         rclpy.shutdown(context=node.context)

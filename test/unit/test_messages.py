@@ -1,0 +1,70 @@
+"""messages.py: the one BatteryState rule (status, health, technology) and the estimate
+vector, as the node publishes them and soc_replay --output-bag writes them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT
+
+from soc_estimator_ros import messages as m
+from soc_estimator_ros.estimators import make_estimator
+from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.recordings import battery_state_message
+
+SLA = load_battery_params(REPO_ROOT / "config" / "sla_12v5ah.yaml")
+
+
+@pytest.mark.parametrize(
+    ("current_core_a", "status"),
+    [(2.0, m.STATUS_DISCHARGING), (-2.0, m.STATUS_CHARGING), (0.05, m.STATUS_NOT_CHARGING)],
+)
+def test_status_from_the_current_with_a_dead_band(current_core_a, status) -> None:
+    fields = m.estimate_state(SLA, 0.5, 0, 12.5, current_core_a, idle_current_a=0.1)
+    assert fields.power_supply_status == status
+    assert fields.current == -current_core_a  # ROS sign: negative while discharging
+
+
+def test_health_and_capacity_fields() -> None:
+    lim = SLA.limits
+    assert m.supply_health(lim.voltage_max_v + 0.1, 25.0, lim) == m.HEALTH_OVERVOLTAGE
+    assert m.supply_health(lim.voltage_min_v - 0.1, 25.0, lim) == m.HEALTH_DEAD
+    assert m.supply_health(12.5, lim.temperature_min_c - 1, lim) == m.HEALTH_COLD
+    assert m.supply_health(12.5, lim.temperature_max_c + 1, lim) == m.HEALTH_OVERHEAT
+    assert m.supply_health(12.5, math.nan, lim) == m.HEALTH_GOOD  # unknown is not judged
+    f = m.estimate_state(SLA, 0.4, 0, 12.5, 1.0)
+    assert f.charge == pytest.approx(0.4 * SLA.capacity_ah)
+    assert f.capacity == SLA.capacity_ah and f.design_capacity == SLA.nominal_capacity_ah
+    assert f.power_supply_technology == m.TECHNOLOGY_BY_CHEMISTRY["sla"] == 8  # VRLA in Jazzy
+    assert m.chemistry_of_technology(4) == "lfp" and m.chemistry_of_technology(99) is None
+
+
+def test_the_rosbags_message_carries_every_field() -> None:
+    f = m.estimate_state(SLA, 0.4, 1_500_000_000_123, 12.5, 1.0, 20.0, serial_number="S1")
+    msg = battery_state_message(f)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1500, 123)
+    assert msg.percentage == pytest.approx(0.4) and msg.serial_number == "S1"
+    assert msg.power_supply_health == m.HEALTH_GOOD and len(msg.cell_voltage) == 0
+
+
+def test_estimate_vector_round_trip() -> None:
+    est = make_estimator("hybrid", SLA, 0.6, 0.1).step(0.0, 1.0, 12.5, 25.0)
+    labels = m.estimate_labels(est.state_names)
+    data = m.estimate_vector(12.0, est)
+    assert len(data) == len(labels) == 7 + len(est.x) + len(est.x) ** 2
+
+    class Dim:
+        label = m.layout_label(est.state_names)
+
+    class Layout:
+        dim = [Dim()]
+
+    class Msg:
+        layout = Layout()
+
+    Msg.data = np.asarray(data)
+    decoded = m.decode_estimate(Msg)
+    assert decoded["stamp_s"] == 12.0 and decoded["soc"] == est.soc
+    assert decoded["soc_std"] == pytest.approx(math.sqrt(est.soc_var))
