@@ -132,7 +132,7 @@ def battery_state_message(fields: BatteryStateFields) -> Any:
 
 def float64_array_message(label: str, data: Sequence[float]) -> Any:
     """A rosbags ``std_msgs/Float64MultiArray`` with one labelled dimension (the node's
-    ``battery/soc_estimate`` layout, see ``outputs.py``)."""
+    ``battery/soc_estimate`` layout, see ``messages.py``)."""
     return _ARRAY(
         layout=_LAYOUT(
             dim=[_DIM(label=label, size=len(data), stride=len(data))],

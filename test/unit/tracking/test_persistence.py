@@ -1,0 +1,140 @@
+"""tracking/persistence.py: the atomic state file, its validation and the resume decision."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import REPO_ROOT
+
+from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.tracking.gate import GateConfig, InputGate
+from soc_estimator_ros.tracking.persistence import (
+    SavedState,
+    StateFileError,
+    load_state,
+    resume_decision,
+    save_state,
+)
+
+SLA = REPO_ROOT / "config" / "sla_12v5ah.yaml"
+S = 1_000_000_000  # ns per s
+T0 = 1_778_151_600 * S
+
+
+@pytest.fixture(scope="module")
+def limits():
+    return load_battery_params(SLA).limits
+
+
+@pytest.fixture()
+def gate(limits) -> InputGate:
+    return InputGate(GateConfig.from_limits(limits, stale_timeout_s=2.0))
+
+
+# -- persistence -----------------------------------------------------------------------------
+STATE = SavedState(soc=0.7312, soc_var=1.2e-5, stamp_s=1_778_152_330.1, estimator="hybrid",
+                   battery="AJC 12 V 5 Ah SLA (seed 000)")  # fmt: skip
+
+
+def test_save_and_load_round_trip(tmp_path: Path) -> None:
+    path = tmp_path / "deep" / "dir" / "state.yaml"
+    save_state(path, STATE)
+    assert load_state(path) == STATE
+    # Overwrite atomically: no temporary file left behind.
+    save_state(path, SavedState(0.5, 1e-4, STATE.stamp_s + 10, "coulomb", STATE.battery))
+    assert load_state(path).soc == 0.5
+    assert sorted(os.listdir(path.parent)) == ["state.yaml"]
+
+
+def test_save_keeps_the_old_file_when_writing_fails(tmp_path: Path, monkeypatch) -> None:
+    path = tmp_path / "state.yaml"
+    save_state(path, STATE)
+
+    def broken_fsync(fd: int) -> None:
+        raise OSError("disk on fire")
+
+    monkeypatch.setattr(os, "fsync", broken_fsync)
+    with pytest.raises(OSError, match="disk on fire"):
+        save_state(path, SavedState(0.1, 1e-4, 0.0, "x", "y"))
+    monkeypatch.undo()
+    assert load_state(path) == STATE
+    assert sorted(os.listdir(tmp_path)) == ["state.yaml"]
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        ("", "mapping"),
+        ("[1, 2]", "mapping"),
+        ("format: 2\nsoc: 0.5", "format"),
+        ("{format: 1, soc: 1.5, soc_var: 0.1, stamp_s: 1, estimator: h, battery: b}", "soc ="),
+        ("{format: 1, soc: .nan, soc_var: 0.1, stamp_s: 1, estimator: h, battery: b}", "finite"),
+        ("{format: 1, soc: 0.5, soc_var: 0, stamp_s: 1, estimator: h, battery: b}", "soc_var"),
+        ("{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: x, estimator: h, battery: b}", "stamp_s"),
+        ("{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: 1, estimator: '', battery: b}", "estim"),
+        ("{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: 1, estimator: h}", "battery"),
+        ("soc: [unclosed", "YAML"),
+    ],
+)
+def test_load_validates(tmp_path: Path, content: str, problem: str) -> None:
+    path = tmp_path / "state.yaml"
+    path.write_text(content)
+    with pytest.raises(StateFileError, match=problem):
+        load_state(path)
+
+
+def test_load_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(StateFileError, match="no such file"):
+        load_state(tmp_path / "nope.yaml")
+
+
+def test_resume_decision(tmp_path: Path) -> None:
+    path = tmp_path / "state.yaml"
+    save_state(path, STATE)
+    fresh = resume_decision(path, STATE.stamp_s + 30.0, 600.0, STATE.battery)
+    assert fresh.resume and fresh.state == STATE and "resuming" in fresh.reason
+    old = resume_decision(path, STATE.stamp_s + 601.0, 600.0, STATE.battery)
+    assert not old.resume and "older than resume_max_age_s" in old.reason
+    other = resume_decision(path, STATE.stamp_s + 1.0, 600.0, "another pack")
+    assert not other.resume and "another pack" in other.reason
+    future = resume_decision(path, STATE.stamp_s - 100.0, 600.0, STATE.battery)
+    assert not future.resume and "future" in future.reason
+    jitter = resume_decision(path, STATE.stamp_s - 0.5, 600.0, STATE.battery)
+    assert jitter.resume
+    missing = resume_decision(tmp_path / "none.yaml", 0.0, 600.0, STATE.battery)
+    assert not missing.resume and "no such file" in missing.reason
+
+
+def test_state_file_is_plain_yaml(tmp_path: Path) -> None:
+    path = tmp_path / "state.yaml"
+    save_state(path, STATE)
+    raw = yaml.safe_load(path.read_text())
+    assert raw == {"format": 1, **{k: getattr(STATE, k) for k in STATE.__dataclass_fields__}}
+
+
+def test_a_binary_state_file_is_one_line_and_is_set_aside(tmp_path: Path) -> None:
+    path = tmp_path / "state.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00")
+    with pytest.raises(StateFileError, match="not a text file") as info:
+        load_state(path)
+    assert "\n" not in str(info.value)
+    decision = resume_decision(path, 0.0, 3600.0, "any")
+    assert not decision.resume and "set aside" in decision.reason
+    assert not path.exists() and (tmp_path / "state.yaml.unusable").exists()
+
+
+def test_temp_files_left_by_a_kill_are_removed(tmp_path: Path) -> None:
+    from soc_estimator_ros.tracking.persistence import remove_stale_temp_files
+
+    path = tmp_path / "state.yaml"
+    save_state(path, SavedState(0.5, 1e-4, 1.0, "hybrid", "pack"))
+    left = [tmp_path / ".state.yaml.k1ll.tmp", tmp_path / ".state.yaml.x9.tmp"]
+    for p in left:
+        p.write_text("soc: 0.")
+    other = tmp_path / ".other.yaml.a.tmp"
+    other.write_text("")
+    assert sorted(remove_stale_temp_files(path)) == sorted(left)
+    assert path.exists() and other.exists() and not any(p.exists() for p in left)
