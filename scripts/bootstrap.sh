@@ -72,7 +72,7 @@ pip=("$VENV/bin/python" -m pip --quiet --quiet --disable-pip-version-check)
 "${pip[@]}" install --no-deps --no-build-isolation -e "$ROOT" || die "pip install -e . failed"
 
 "$VENV/bin/python" -c 'import soc_estimator_ros' || die "soc_estimator_ros does not import from .venv"
-for exe in soc_replay soc_identify soc_estimator_node colcon ruff pytest; do
+for exe in soc_replay soc_identify soc_estimator_node colcon ruff mypy pytest; do
   [ -x "$VENV/bin/$exe" ] || die ".venv/bin/$exe is missing after the install"
 done
 printf '%s\n' "$want" >"$STAMP"

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The README's test command: set up .venv if needed, lint (ruff), then run the whole test suite.
+# The README's test command: set up .venv if needed, lint (ruff), type-check (mypy), then run the
+# whole test suite.
 # Extra arguments go to pytest (e.g. ./scripts/test.sh -k colcon -n 0).
 # SOC_TEST_JOBS sets the number of pytest-xdist workers (default 2; 0 = no workers).
 set -euo pipefail
@@ -16,6 +17,8 @@ echo "test.sh: ruff check ."
 .venv/bin/ruff check --no-cache . || failed+=("ruff check")
 echo "test.sh: ruff format --check ."
 .venv/bin/ruff format --no-cache --check . || failed+=("ruff format --check")
+echo "test.sh: mypy"
+.venv/bin/mypy || failed+=("mypy")
 
 echo "test.sh: pytest"
 status=0

@@ -36,7 +36,7 @@ from .units import ros_current_from_core
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
-_BS = TYPESTORE.types[BATTERY_STATE]
+_BS: Any = TYPESTORE.types[BATTERY_STATE]  # constants are set on the generated class
 
 STATUS_UNKNOWN = int(_BS.POWER_SUPPLY_STATUS_UNKNOWN)
 STATUS_CHARGING = int(_BS.POWER_SUPPLY_STATUS_CHARGING)

@@ -134,6 +134,9 @@ class Estimator(ABC):
     soc_index: int = 0
     #: Tuning entries and their defaults; a battery file's ``filters.<name>`` overrides them.
     default_tuning: ClassVar[Mapping[str, Any]] = {}
+    # Set by _init_state (FilterpyState makes them properties over a filterpy filter).
+    x: np.ndarray
+    p: np.ndarray
 
     def __init__(
         self,

@@ -98,6 +98,9 @@ class BatchUnscentedKalmanFilter(UnscentedKalmanFilter):
     is what makes the replay fast enough (see benchmarks/).
     """
 
+    x: np.ndarray  # filterpy's state and covariance (its class is untyped)
+    P: np.ndarray
+
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._wc_col = self.Wc[:, np.newaxis]
@@ -145,7 +148,7 @@ class T2rcUkf(FilterpyState, Estimator):
     """UKF on the 2-RC Thevenin model (SoC is a state)."""
 
     name = "t2rc_ukf"
-    state_names = ("soc", "v1_v", "v2_v")
+    state_names: tuple[str, ...] = ("soc", "v1_v", "v2_v")
     soc_index = 0
     default_tuning = {
         "q_diag": (1.0e-10, 1.0e-6, 1.0e-6),  # per second: SoC^2/s, V^2/s, V^2/s

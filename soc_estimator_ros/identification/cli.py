@@ -28,6 +28,7 @@ import argparse
 import math
 import shlex
 import sys
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -90,7 +91,7 @@ def identify_tests(
         raise IdentificationError(
             f"--rate-test gives {len(rate_tests)} rate test(s) for {len(tests)} tests"
         )
-    rates = rate_tests or [None] * len(tests)
+    rates: Sequence[BatterySeries | None] = rate_tests or [None] * len(tests)
     if len(tests) == 1:
         res = identify(
             tests[0], template, capacity_ah, slow, progress, rates[0], load_test=load_test
@@ -302,6 +303,7 @@ def main(argv: list[str] | None = None) -> int:
     load_battery_params(args.output)  # what was written loads as is
     print(f"wrote {args.output}")
     if args.plot:
+        assert results[0].test is not None  # identify() always sets it
         plot_fit(args.plot, results[0].test, results[0])
         print(f"plot: {args.plot}")
     return 0

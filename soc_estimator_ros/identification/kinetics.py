@@ -140,6 +140,7 @@ def fit_level(steps: list[RateStep], capacity_ah: float) -> KineticFit:
         )
         if best is None or sol.cost < best.cost:
             best = sol
+    assert best is not None  # the loop runs three times
     r, a, log_i0 = best.x
     rmse = float(np.sqrt(np.mean(best.fun**2)))
     soc = float(np.median([s.soc for s in steps]))

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -130,7 +131,9 @@ def fit_surface_lag(ocv: OcvCurve, stages: Sequence[LagStage]) -> SurfaceLagFit:
             for w, b, z0 in zip(stage.windows, base, z_held, strict=True):
                 z = z0
                 if p.size:
-                    z = z0 + mode_path(w.current_a, w.soc, *np.exp(p), stage.soc_max)
+                    z = z0 + mode_path(
+                        w.current_a, w.soc, *cast("tuple[float, float]", np.exp(p)), stage.soc_max
+                    )
                 out.append(b + ocv.ocv_array(w.soc - z) - w.measured_v)
             return np.concatenate(out)
 

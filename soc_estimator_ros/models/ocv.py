@@ -48,7 +48,9 @@ class OcvCurve:
         ocv_v: OCV at each breakpoint in volts, strictly increasing.
     """
 
-    def __init__(self, soc: Sequence[float], ocv_v: Sequence[float]) -> None:
+    def __init__(
+        self, soc: Sequence[float] | np.ndarray, ocv_v: Sequence[float] | np.ndarray
+    ) -> None:
         soc_arr = np.asarray(soc, dtype=float)
         ocv_arr = np.asarray(ocv_v, dtype=float)
         if soc_arr.ndim != 1 or soc_arr.shape != ocv_arr.shape or soc_arr.size < 2:

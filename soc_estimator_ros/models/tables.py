@@ -20,7 +20,7 @@ try:  # the compiled core of np.interp, without its Python wrapper (same result,
     from numpy._core.multiarray import interp as fast_interp
 except ImportError:  # pragma: no cover - another numpy layout
 
-    def fast_interp(x, xp, fp, left, right):
+    def fast_interp(x, xp, fp, left, right):  # type: ignore[no-redef]  # the import's fallback
         return np.interp(x, xp, fp, left, right)
 
 
@@ -84,7 +84,7 @@ class ParamTable:
     @classmethod
     def from_arrays(
         cls,
-        soc: Sequence[float],
+        soc: Sequence[float] | np.ndarray,
         values: Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
         temperature_c: Sequence[float] | None = None,
     ) -> ParamTable:

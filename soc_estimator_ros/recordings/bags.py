@@ -77,7 +77,7 @@ def read_battery_bag(
             states: list[tuple[int, float, float, float, float, int]] = []
             refs: dict[int, tuple[float, float]] = {}
             for conn, _, raw in reader.messages(connections=wanted):
-                msg = reader.deserialize(raw, conn.msgtype)
+                msg: Any = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == state_topic:
                     states.append(
                         (

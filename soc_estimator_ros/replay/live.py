@@ -27,7 +27,7 @@ import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -208,10 +208,16 @@ class NodeLink:
                 self.pub.publish(m)
             if expect_outputs:
                 ok = self.spin_until(
-                    lambda w=want_out: len(self.soc) >= w and len(self.est) >= w, 30.0
+                    cast(
+                        "Callable[[], bool]",
+                        lambda w=want_out: len(self.soc) >= w and len(self.est) >= w,
+                    ),
+                    30.0,
                 )
             else:
-                ok = self.spin_until(lambda w=want_judged: self.judged() >= w, 30.0)
+                ok = self.spin_until(
+                    cast("Callable[[], bool]", lambda w=want_judged: self.judged() >= w), 30.0
+                )
             if not ok:
                 raise RuntimeError(f"the node answered {len(self.soc)} of {want_out} samples")
             if progress is not None:

@@ -69,7 +69,7 @@ def write_output_bag(
     n = len(series)
     stamps = [int(s) for s in series.stamp_ns]
 
-    def bridge(k: int, **extra: float) -> Any:
+    def bridge(k: int, **extra: Any) -> Any:
         return battery_state_message(
             bridge_state(
                 stamps[k],
