@@ -1,10 +1,10 @@
 """Offline replay throughput of each estimator on the bundled 10 Hz field runs, and peak RSS.
 
-Samples per second and times real time of ``evaluation.run_estimator`` (what ``soc_replay``
-runs), per estimator and bag, the best of ``--repeat`` runs (this VM's speed varies by up to 2x
-from one run to the next; the fastest run is the least disturbed one, as ``timeit`` takes it);
-the process's peak RSS at the end. Target (issue "Replay and evaluation"): ``t2rc_ukf`` >=
-1000x real time at 10 Hz. Prints numbers, asserts nothing.
+Samples per second and times real time of ``replay.run.replay_estimator`` (what ``soc_replay``
+runs: the samples through the node's tracker and input gate), per estimator and bag, the best
+of ``--repeat`` runs (the fastest run is the least disturbed one, as ``timeit`` takes it); the
+process's peak RSS at the end. Target (issue "Replay and evaluation"): ``t2rc_ukf`` >= 1000x
+real time at 10 Hz. Prints numbers, asserts nothing.
 
     python benchmarks/replay_throughput.py [--bags sla_field_run_1_full_rest,...] [--repeat 3]
 """
@@ -19,12 +19,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
-from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
+from soc_estimator_ros.estimators import ESTIMATORS  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
 from soc_estimator_ros.recordings import read_battery_bag  # noqa: E402
-
-FILES = {"sla": "sla_12v5ah.yaml", "lfp": "lfp_12v6ah.yaml"}
+from soc_estimator_ros.replay.run import battery_file_for, replay_estimator  # noqa: E402
 
 
 def main() -> int:
@@ -38,14 +36,13 @@ def main() -> int:
     print(f"{'bag':<28} {'estimator':<10} {'samples':>8} {'samples/s':>10} {'x_realtime':>10}")
     for name in args.bags.split(","):
         series = read_battery_bag(ROOT / "bags" / name)
-        battery = load_battery_params(ROOT / "config" / FILES[name[:3]])
+        battery = load_battery_params(battery_file_for(series))
         span_s = float(series.t_s[-1] - series.t_s[0])
         for est_name in args.estimators.split(","):
             wall = math.inf
             for _ in range(args.repeat):
-                est = make_estimator(est_name, battery, float(series.soc_ref[0]), 0.1)
                 t0 = time.perf_counter()
-                run_estimator(est, series)
+                replay_estimator(series, battery, est_name, "ref", name)
                 wall = min(wall, time.perf_counter() - t0)
             rate = len(series) / wall
             print(

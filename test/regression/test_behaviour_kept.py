@@ -2,11 +2,10 @@
 gives the estimates it gave before, through the tracker (the node's and soc_replay's path).
 
 ``data/estimates_before.npz`` was recorded with the code before the split (commit 8823337,
-``evaluation.run_estimator`` on each bag from its reference start, initial std 0.1): for each
-``<bag>/<estimator>``, SoC, its std and the state at every ``STEP``-th sample of the first
-``N`` samples. The filters are causal, so the first ``N`` samples of a full run are what a run
-over them gives. The whole runs (1.2 M samples, 6 estimators) were compared once at the split
-(identical to the bit; docs/architecture.md); the suite replays the prefix, about 20 s.
+``evaluation.run_estimator`` on the first ``N`` samples of each bag from its reference start,
+initial std 0.1): for each ``<bag>/<estimator>``, SoC, its std and the state at every
+``STEP``-th sample. The replay here goes through what soc_replay runs now (``Tracker``, input
+gate); test/ros/test_node.py holds the live node to the offline estimator on 3000 samples.
 """
 
 from __future__ import annotations

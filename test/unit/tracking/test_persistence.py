@@ -9,8 +9,6 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
-from soc_estimator_ros.params import load_battery_params
-from soc_estimator_ros.tracking.gate import GateConfig, InputGate
 from soc_estimator_ros.tracking.persistence import (
     SavedState,
     StateFileError,
@@ -21,17 +19,6 @@ from soc_estimator_ros.tracking.persistence import (
 
 SLA = REPO_ROOT / "config" / "sla_12v5ah.yaml"
 S = 1_000_000_000  # ns per s
-T0 = 1_778_151_600 * S
-
-
-@pytest.fixture(scope="module")
-def limits():
-    return load_battery_params(SLA).limits
-
-
-@pytest.fixture()
-def gate(limits) -> InputGate:
-    return InputGate(GateConfig.from_limits(limits, stale_timeout_s=2.0))
 
 
 # -- persistence -----------------------------------------------------------------------------
