@@ -63,8 +63,10 @@ def bag_path(name: str) -> Path:
 
 
 def load_benchmark(name: str) -> ModuleType:
-    """A script of ``benchmarks/`` as a module (they are scripts, not a package)."""
+    """A script of ``benchmarks/`` as a module (they are scripts, not a package); ``name`` is
+    its path below ``benchmarks/`` without ``.py`` (``"perf/ukf_floor"``)."""
     path = REPO_ROOT / "benchmarks" / f"{name}.py"
+    name = Path(name).name
     spec = importlib.util.spec_from_file_location(name, path)
     assert spec is not None and spec.loader is not None, path
     module = importlib.util.module_from_spec(spec)

@@ -10,7 +10,7 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
     python tools/make_bags.py --graphite-diffusivity-x 10 --out /tmp/fast_graphite --only \
         lfp_pulse_test lfp_pulse_test_5c lfp_slow_discharge lfp_rate_test lfp_rate_test_5c \
         lfp_load_test lfp_field_run_1_full_rest lfp_field_run_2_partial lfp_field_run_3_cold
-        # a dev pack, its graphite diffusing 10x faster (README "Identification")
+        # a dev pack, its graphite diffusing 10x faster (docs/identification.md)
 
 Packs (bags/README.md): 12 V 5 Ah SLA = 6 cells of PyBaMM's full lead-acid model
 (``lead_acid.Full``, Sulzer2019: 21.75 Ah at C/20) with the current scaled by 21.75/5;
@@ -530,8 +530,8 @@ SPECS = [
 ]
 
 #: Not bundled (``--dev``, into a directory of your own): seeder missions from full to 20 %
-#: with seeds apart from the field runs', on which ``benchmarks/table_transfer.py`` fits the
-#: 2RC's tables to see whether they carry over to the field runs (README "Identification").
+#: with seeds apart from the field runs', on which ``benchmarks/studies/table_transfer.py`` fits the
+#: 2RC's tables to see whether they carry over to the field runs (docs/identification.md).
 DEV_SPECS = [
     BagSpec(
         f"lfp_mission_{seed}",

@@ -8,13 +8,13 @@ papers report:
 1. **Voltage updates only where the model was identified.** The Thevenin parameters come from
    pulse tests at about 0.2 C; under the field runs' 10-30 A bursts the packs' kinetics are
    strongly nonlinear (Butler-Volmer) and the linear model's voltage error reaches 0.5-2 V
-   (measured on the bags: README "Accuracy"). Above ``update_c_rate_max`` (in C, i.e. per Ah
+   (measured on the bags: docs/accuracy.md). Above ``update_c_rate_max`` (in C, i.e. per Ah
    of capacity) the sample only propagates the state (coulomb counting plus the RC dynamics);
    the voltage updates the SoC at light load and at rest, as DCC-EKF (seed 001) does. A file
    identified with a rate test (Butler-Volmer drop, saturating fastest branch) covers the rate
    test's currents: both bundled files set ``filters.hybrid.update_c_rate_max`` to its top
    rate, 6 C (the SLA model follows the field runs within 21-26 mV, the LFP one with its
-   two-mode surface lag within 40-46 mV, with ``r_per_a`` 0.1 V/A; README "Accuracy": on LFP's cold
+   two-mode surface lag within 40-46 mV, with ``r_per_a`` 0.1 V/A; docs/accuracy.md: on LFP's cold
    run, a start at full under 9 A, the updates under load hold the SoC in the knee, where the
    voltage tells it, before a light-load update with a wide prior can move it onto the plateau).
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
@@ -63,7 +63,7 @@ class Hybrid(T2rcUkf):
     name = "hybrid"
     default_tuning = {
         **T2rcUkf.default_tuning,
-        # Tuned on the bundled field runs (README "Accuracy"): the branch voltages may wander
+        # Tuned on the bundled field runs (docs/accuracy.md): the branch voltages may wander
         # little (the model's relaxation is trusted), light-load updates are weak (the 2RC's
         # error at 0.3 A after a 20 A burst is tens of mV) and rest updates wait 20 minutes.
         "q_diag": (1.0e-10, 1.0e-6, 1.0e-7),
@@ -78,7 +78,7 @@ class Hybrid(T2rcUkf):
         "nis_gate": 4.0,
         "q_inflate": 1.0e-5,  # SoC^2/s while the NIS is above the gate
         # The model-error state (item 5): the linear LFP file's light-load error after a burst,
-        # 36-60 mV, relaxing over minutes (README "Accuracy"); identified files set their own.
+        # 36-60 mV, relaxing over minutes (docs/accuracy.md); identified files set their own.
         "bias_std_v": 0.06,  # V: stationary std of the model's voltage error under load
         "bias_tau_s": 600.0,  # s: its correlation time
     }

@@ -154,7 +154,7 @@ class T2rcUkf(FilterpyState, Estimator):
         "q_diag": (1.0e-10, 1.0e-6, 1.0e-6),  # per second: SoC^2/s, V^2/s, V^2/s
         # V^2: (1 V)^2. Not the ADC's noise (2 mV) but the 2RC model's error: identified from
         # 0.2 C pulses alone, it misses the voltage by 0.4-2 V under the field runs' 10-30 A
-        # bursts (README "Accuracy"; the LFP file). With (20 mV)^2 the filter follows that
+        # bursts (docs/accuracy.md; the LFP file). With (20 mV)^2 the filter follows that
         # error: 27-34 % MAE on SLA with such a file.
         "r": 1.0,
         "p0_v": 1.0e-4,  # V^2: initial branch-voltage variance

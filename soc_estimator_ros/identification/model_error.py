@@ -20,7 +20,7 @@ error is larger but not a bias: the NCR18650PF's 2RC misses its 0.6 degC HPPC by
 (its 25.8 degC one by 7.3 mV), an error that changes sign within 5 minutes of each pulse
 (autocovariance negative from 300 s on); a bias state that size at 0 degC (per temperature,
 with its fitted 2-min correlation time) let the hybrid take 20-75 minutes instead of 4 to come
-within 2 % from a wrong start on the 0 degC drive cycles (README "Identification").
+within 2 % from a wrong start on the 0 degC drive cycles (docs/identification.md).
 """
 
 from __future__ import annotations

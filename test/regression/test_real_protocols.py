@@ -5,7 +5,7 @@ The measured files (../shared/real-data) are never copied here: each parsing pat
 a recharge at the start, regen pulses inside a block, tests at two temperatures) is rebuilt in
 a few lines. The pack voltage comes from known 2-RC parameters through the package's own model:
 these tests check that the identification finds them back, not an estimator's accuracy. The
-full real-data evaluation is ``benchmarks/real_data.py``.
+full real-data evaluation is ``benchmarks/studies/real_data.py``.
 """
 
 from __future__ import annotations
@@ -271,7 +271,7 @@ def test_the_ocv_shift_is_measured_at_the_other_tests_rests_not_between_them() -
 
 
 def test_real_data_benchmark_skips_clearly_without_the_data(tmp_path: Path) -> None:
-    """benchmarks/real_data.py reads ../shared/real-data when present; elsewhere (a clean CI
+    """benchmarks/studies/real_data.py reads ../shared/real-data when present; elsewhere (a clean CI
     checkout) it says so and exits 0, without touching the network or the repository."""
     import subprocess
     import sys

@@ -312,7 +312,7 @@ def test_batched_ukf_follows_filterpy_s_ukf_over_a_long_run() -> None:
 
 
 def test_the_ukf_floor_benchmark_computes_what_t2rc_ukf_computes() -> None:
-    """benchmarks/ukf_floor.py times a hand-fused t2rc_ukf (README "Benchmarks"); a floor that
+    """benchmarks/perf/ukf_floor.py times a hand-fused t2rc_ukf (docs/benchmarks.md); a floor that
     drifted from the filter would time something else. On the first 3000 samples of SLA field
     run 1 (kinetic and saturating tables at two temperatures, a start at full that clips) it
     follows t2rc_ukf to rounding: 1e-10 of SoC (measured 8e-15 over the whole run; the two
@@ -323,7 +323,7 @@ def test_the_ukf_floor_benchmark_computes_what_t2rc_ukf_computes() -> None:
     bag = CONFIG_DIR.parent / "bags" / "sla_field_run_1_full_rest"
     if not bag.exists():
         pytest.skip("no field-run bag under bags/")
-    floor = load_benchmark("ukf_floor")
+    floor = load_benchmark("perf/ukf_floor")
     series = read_battery_bag(bag).window(0, 3000)
     ref = run_estimator(make_estimator("t2rc_ukf", SLA, 1.0, 0.1), series).soc
     soc = floor.fused_run(SLA, make_estimator("t2rc_ukf", SLA, 1.0, 0.1), series)
@@ -332,7 +332,7 @@ def test_the_ukf_floor_benchmark_computes_what_t2rc_ukf_computes() -> None:
 
 
 def test_the_model_error_budget_scales_the_models_own_error() -> None:
-    """benchmarks/model_error_budget.py (README "Accuracy") feeds the estimators
+    """benchmarks/studies/model_error_budget.py (docs/accuracy.md) feeds the estimators
     v_exact + lam (v_bag - v_exact), v_exact the file's model on the true SoC plus the ADC's
     2 mV noise. At lam = 1 that must be the bag (to rounding), at lam = 0 the model within the
     noise, and the error in between the bag's error times lam."""
@@ -341,7 +341,7 @@ def test_the_model_error_budget_scales_the_models_own_error() -> None:
     bag = CONFIG_DIR.parent / "bags" / "lfp_field_run_2_partial"
     if not bag.exists():
         pytest.skip("no field-run bag under bags/")
-    budget = load_benchmark("model_error_budget")
+    budget = load_benchmark("studies/model_error_budget")
     series = read_battery_bag(bag).window(0, 3000)
     model_v = budget.model_voltage_on_truth(LFP, series)
     bag_error_v = series.voltage_v - model_v

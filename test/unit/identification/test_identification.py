@@ -413,7 +413,7 @@ def bag_identification(chem: str):
     )
 
 
-# Measured with the identified files (README "Identification"): the pulse tests' RMSE is
+# Measured with the identified files (docs/identification.md): the pulse tests' RMSE is
 # SLA 9.6 mV, LFP 8.2 mV identified from the pulse test alone (24.9 mV before the knee pulse's
 # end fit and the surface lag; 12.1 mV with the bundled file, made with the rate and load tests
 # too). The
@@ -423,8 +423,8 @@ FIELD_XFAIL = {
     "lfp": "LFP field runs: 41 / 40 / 46 mV RMSE > 30 mV (26 / 17 / 25 above SoC 0.45). The "
     "graphite's slow diffusion: tables that follow one run give another 22-26 mV but miss the "
     "load test by 69 mV, those of the lab tests give the runs 44-66 mV "
-    "(benchmarks/table_transfer.py), and with the graphite 10x faster the same identification "
-    "gives the runs 27.7 / 16.5 / 22.7 mV (README 'Identification')"
+    "(benchmarks/studies/table_transfer.py), and with the graphite 10x faster the same "
+    "identification gives the runs 27.7 / 16.5 / 22.7 mV (docs/identification.md)"
 }
 
 
@@ -494,14 +494,14 @@ def test_identified_model_reproduces_the_field_runs(chem: str) -> None:
 
 
 def test_the_table_transfer_benchmark_runs_the_files_model() -> None:
-    """benchmarks/table_transfer.py (README "Identification": why the LFP field runs stay near
-    40 mV) fits factors on the file's tables through its own copy of the model's recursion.
+    """benchmarks/studies/table_transfer.py (docs/identification.md: why the LFP field runs stay
+    near 40 mV) fits factors on the file's tables through its own copy of the model's recursion.
     With every factor at 1 it must be the file's model with the SoC imposed at every sample
     (``simulate_voltage(..., gap_s=-1)``) to rounding: on the cold run's first 5 minutes, which
     blend the tables' 5 and 25 degC rows at a noisy sensor temperature and go through the LFP
     file's kinetics, saturating branch and lag. And its fit must find the factors from a voltage
     the same model made with other ones (at the SoC point the window reaches: x1.5 and x0.7)."""
-    transfer = load_benchmark("table_transfer")
+    transfer = load_benchmark("studies/table_transfer")
     lfp = load_battery_params(ROOT / "config" / "lfp_12v6ah.yaml")
     series = read_battery_bag(bag_path("lfp_field_run_3_cold")).window(0, 3000)
     prep = transfer.prepare(lfp, series, "cold run, 5 min")

@@ -136,7 +136,7 @@ def test_pulse_test_rests_fall_with_soc(bag: Path) -> None:
 def test_load_test_steps_and_slow_recovery(bag: Path) -> None:
     """tools/make_bags.py's load test: 10 % steps at 3 C with 1-h rests; the rested voltage
     before each step falls with the SoC, and after a step the pack recovers over minutes (what
-    the test is for: the surface lag's slow mode, README "Identification")."""
+    the test is for: the surface lag's slow mode, docs/identification.md)."""
     s = series(bag)
     cap = s.design_capacity_ah
     loaded = s.current_a > 0.5 * cap

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/accuracy_table.py [--jobs 2] [--bags bags]
+    python benchmarks/studies/accuracy_table.py [--jobs 2] [--bags bags]
 
 Per estimator and chemistry, for each field run (in name order: run 1, run 2, cold run): MAE,
 RMSE and max error (% SoC, after the 10-minute window, from the true start) and the time to
@@ -19,7 +19,7 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import accuracy, run_estimator  # noqa: E402

@@ -17,7 +17,7 @@ cut-off) is printed next to it. Metrics as in evaluation.py: MAE, RMSE, max afte
 window, from the true initial SoC; convergence time (|error| < 2 %) from +20 % and -30 %
 initial errors, starting where the reference SoC is 75 % (a full start leaves no room above).
 
-    python benchmarks/real_data.py [--data DIR] [--estimators hybrid,t2rc_ukf]
+    python benchmarks/studies/real_data.py [--data DIR] [--estimators hybrid,t2rc_ukf]
         [--files 'panasonic18650pf_25C_*'] [--jobs 2]
 """
 
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import accuracy, run_estimator  # noqa: E402

@@ -24,7 +24,7 @@ the LFP file's block sets 0.1 V/A and 6 C): a filter tuned to its model's error;
 ``--tuning file`` (default) the file's tuning at every lam. A diagnosis, not a test: the model
 made exact along the truth uses the truth.
 
-    python benchmarks/model_error_budget.py [--config config/lfp_12v6ah.yaml]
+    python benchmarks/studies/model_error_budget.py [--config config/lfp_12v6ah.yaml]
         [--lambdas 0,0.25,0.5,1] [--estimators hybrid,t2rc_ukf] [--tuning file|scaled]
 """
 
@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.estimators.hybrid import Hybrid  # noqa: E402

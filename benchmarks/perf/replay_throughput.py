@@ -6,7 +6,7 @@ of ``--repeat`` runs (the fastest run is the least disturbed one, as ``timeit`` 
 process's peak RSS at the end. Target (issue "Replay and evaluation"): ``t2rc_ukf`` >= 1000x
 real time at 10 Hz. Prints numbers, asserts nothing.
 
-    python benchmarks/replay_throughput.py [--bags sla_field_run_1_full_rest,...] [--repeat 3]
+    python benchmarks/perf/replay_throughput.py [--bags sla_field_run_1_full_rest,...] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import resource
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.estimators import ESTIMATORS  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402

@@ -3,7 +3,7 @@
 Prints numbers; asserts nothing (speed is checked by reading these, never by timed tests).
 Input: a bundled field-run bag when present, else a synthetic 10 Hz stream.
 
-    python benchmarks/step_time.py [--steps N] [--bag bags/sla_field_run_1_full_rest]
+    python benchmarks/perf/step_time.py [--steps N] [--bag bags/sla_field_run_1_full_rest]
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.estimators import ESTIMATORS, make_estimator  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402

@@ -14,8 +14,8 @@ Targets (issue "Replay and evaluation"): <= 3 % of one core and p99 <= 2 ms at 1
 the node's place: the floor that rclpy and the DDS put under any Python node here.
 Prints numbers and asserts nothing. DDS stays on loopback with a domain id of its own.
 
-    python benchmarks/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
-    python benchmarks/node_latency.py --baseline
+    python benchmarks/perf/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
+    python benchmarks/perf/node_latency.py --baseline
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 
 def cpu_ticks(pid: int) -> int:
@@ -96,7 +96,7 @@ def main() -> int:
         f"publish_rate_hz:={args.publish_rate_hz}",
     ]
     if args.baseline:
-        cmd = [sys.executable, str(ROOT / "benchmarks" / "relay_node.py"), *cmd[1:4]]
+        cmd = [sys.executable, str(Path(__file__).with_name("relay_node.py")), *cmd[1:4]]
     node_proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     rclpy.init()
     io = rclpy.create_node("bench_io", namespace=ns)

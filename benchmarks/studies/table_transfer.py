@@ -8,10 +8,10 @@ the five tables R0, R1, C1, R2, C2 get one factor per SoC point (within 0.1-10 o
 same factor at every temperature row), fitted by ``least_squares`` to the voltage of the
 ``--fit`` bags (each bag weighed by its sample count, so each counts as one RMS), then every
 ``--evaluate`` bag's RMSE is printed, with the file's own for comparison. A diagnosis, not an
-identification: the fit uses the bags' true SoC. README "Identification" (issue 5) has what it
+identification: the fit uses the bags' true SoC. docs/identification.md (issue 5) has what it
 showed on the LFP bags.
 
-    python benchmarks/table_transfer.py [--config config/lfp_12v6ah.yaml]
+    python benchmarks/studies/table_transfer.py [--config config/lfp_12v6ah.yaml]
         [--fit lfp_field_run_1_full_rest [--fit lfp_pulse_test,lfp_load_test ...]]
         [--evaluate lfp_field_run_1_full_rest,lfp_field_run_2_partial,...]
 
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.models.tables import ParamTable  # noqa: E402
 from soc_estimator_ros.params import BatteryParams, load_battery_params  # noqa: E402

@@ -3,7 +3,7 @@
 Subscribes ``battery/state`` and republishes each message unchanged on ``battery/soc``, with
 the same QoS and executor as the real node, nothing else. ``node_latency.py --baseline`` runs
 it in place of the node: its CPU and latency are what rclpy and Fast DDS cost per message on
-this machine, before any estimation (README "Benchmarks").
+this machine, before any estimation (docs/benchmarks.md).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ Target (issue "Parameter identification"): <= 10 s per pulse test. Prints number
 nothing. With ``--real-data DIR`` (default ``../shared/real-data`` when present) also the
 Panasonic NCR18650PF HPPC tests (25 and 0 degC) behind config/li_ion_ncr18650pf.yaml.
 
-    python benchmarks/identify_time.py [--real-data DIR]
+    python benchmarks/perf/identify_time.py [--real-data DIR]
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.identification.cli import identify_tests  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402

@@ -7,9 +7,9 @@ no filterpy dispatch, no Estimate objects, no covariance conditioning. It is a m
 an estimator: it checks that it computes what t2rc_ukf computes (the largest SoC difference
 over the run is printed) and reports how fast that arithmetic can go in numpy on this machine.
 With the replay loop's own cost per sample (``coulomb`` in ``replay_throughput.py``), it bounds
-the replay throughput any filterpy/numpy UKF can reach here (README "Benchmarks").
+the replay throughput any filterpy/numpy UKF can reach here (docs/benchmarks.md).
 
-    python benchmarks/ukf_floor.py [--bag sla_field_run_1_full_rest] [--repeat 3]
+    python benchmarks/perf/ukf_floor.py [--bag sla_field_run_1_full_rest] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg.lapack import dpotrf
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
