@@ -24,7 +24,14 @@ from .errors import SocEstimatorError
 from .models.ocv import OcvCurve
 from .models.rc_saft import RcModelParams
 from .models.tables import ParamTable
-from .models.thevenin import KineticParams, RcBranch, SurfaceLag, TheveninModel, TheveninParams
+from .models.thevenin import (
+    KineticParams,
+    RcBranch,
+    SurfaceLag,
+    TemperatureExtrapolation,
+    TheveninModel,
+    TheveninParams,
+)
 
 SCHEMA_VERSION = 1
 CHEMISTRIES = ("sla", "lfp", "li_ion")
@@ -370,6 +377,22 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
                 raise chk.fail(where, values, f"{n} values, one per gain (mode)")
         surface_lag = SurfaceLag(**modes)
 
+    extrapolation = TemperatureExtrapolation()
+    if th.get("extrapolation") is not None:
+        key = "thevenin.extrapolation"
+        em = chk.mapping(th["extrapolation"], key)
+        extrapolation = TemperatureExtrapolation(
+            activation_energy_j_per_mol=chk.number(
+                em.get("activation_energy_j_per_mol", extrapolation.activation_energy_j_per_mol),
+                f"{key}.activation_energy_j_per_mol",
+                0.0,
+                2.0e5,
+            ),
+            margin_c=chk.number(
+                em.get("margin_c", extrapolation.margin_c), f"{key}.margin_c", 0.0, 100.0
+            ),
+        )
+
     filters = _parse_filters(chk, root.get("filters", {}))
     return BatteryParams(
         name=name,
@@ -382,7 +405,11 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v, temperature_c=ocv_temps, offset_v=ocv_offsets),
         rc_model=rc_params,
         thevenin=TheveninParams(
-            r0_ohm=r0, branches=tuple(branches), kinetic=kinetic, surface_lag=surface_lag
+            r0_ohm=r0,
+            branches=tuple(branches),
+            kinetic=kinetic,
+            surface_lag=surface_lag,
+            extrapolation=extrapolation,
         ),
         filters=filters,
         source=source_text,
@@ -444,6 +471,11 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     }
     if th.kinetic is not None:
         out["thevenin"]["kinetic"] = {"a_v": table(th.kinetic.a_v), "i0_a": table(th.kinetic.i0_a)}
+    if th.extrapolation != TemperatureExtrapolation():  # the default is not written
+        out["thevenin"]["extrapolation"] = {
+            "activation_energy_j_per_mol": th.extrapolation.activation_energy_j_per_mol,
+            "margin_c": th.extrapolation.margin_c,
+        }
     if th.surface_lag is not None:
         out["thevenin"]["surface_lag"] = {
             "gain_soc_per_a": list(th.surface_lag.gain_soc_per_a),

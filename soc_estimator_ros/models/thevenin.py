@@ -35,6 +35,14 @@ at the start of the step, for any dt::
 R_0, R_i, C_i are tables over SoC with an optional temperature axis (:class:`ParamTable`), and
 so is the optional OCV shift with temperature: OCV(SoC, T) = OCV(SoC) + offset(T, SoC).
 
+Outside the temperatures the tables were identified at (beyond a margin), the tables are held
+at their edge row and every resistance is scaled by an Arrhenius factor (not in the papers;
+:class:`TemperatureExtrapolation`): R(T) = R_edge exp(Ea / R_g (1/T - 1/T_edge)), T in kelvin,
+T_edge the identified range's end widened by the margin (so the factor is 1 at the band's
+edge), the time constants kept (C scaled by 1/f) and the Butler-Volmer exchange current
+divided by f. Holding the edge value instead, a file identified at 25 degC reads a 0 degC pack
+with a third of its resistance. Inside the band nothing changes (the factor is exactly 1).
+
 Optionally (not in the papers) the OCV is read at the particles' surface SoC, ``SoC - z``, with
 ``z`` a sum of first-order lags of the current (:class:`SurfaceLag`, one per electrode's
 diffusion): under load the surface empties ahead of the mean, and where the OCV bends (LFP's
@@ -148,6 +156,26 @@ class SurfaceLag:
         return tuple(out)
 
 
+#: The gas constant, J/(mol K).
+GAS_CONSTANT_J_PER_MOL_K = 8.314462618
+KELVIN_AT_0_C = 273.15
+
+
+@dataclass(frozen=True)
+class TemperatureExtrapolation:
+    """How the resistances go beyond the identified temperatures (module docstring).
+
+    Attributes:
+        activation_energy_j_per_mol: Ea of the Arrhenius law (J/mol); the default is a
+            stated prior, 30 kJ/mol, between a Li-ion electrolyte's ohmic part (15-25) and its
+            charge transfer (40-60); a battery file may set its own.
+        margin_c: how far outside the identified range (degC) the tables are still trusted.
+    """
+
+    activation_energy_j_per_mol: float = 30_000.0
+    margin_c: float = 3.0
+
+
 @dataclass(frozen=True)
 class TheveninParams:
     """Thevenin model parameters (pack level).
@@ -157,12 +185,14 @@ class TheveninParams:
         branches: the RC branches, fastest first by convention.
         kinetic: the optional Butler-Volmer overpotential; ``None`` is the papers' model.
         surface_lag: the optional surface-SoC lag of the OCV; ``None`` is the papers' model.
+        extrapolation: the resistances' law beyond the identified temperatures.
     """
 
     r0_ohm: ParamTable
     branches: tuple[RcBranch, ...]
     kinetic: KineticParams | None = None
     surface_lag: SurfaceLag | None = None
+    extrapolation: TemperatureExtrapolation = TemperatureExtrapolation()
 
 
 class TheveninModel:
@@ -190,16 +220,55 @@ class TheveninModel:
             b.c_f for b in params.branches
         )
         self._saturating = any(b.i_sat_a is not None for b in params.branches)
+        temps = params.r0_ohm.temperature_c
+        margin = params.extrapolation.margin_c
+        #: The temperatures (degC) inside which the tables are used as identified.
+        self.trusted_c = (temps[0] - margin, temps[-1] + margin)
+        self._factors: dict[float, float] = {}
+
+    # -- the identified range ----------------------------------------------------------------
+    def extrapolation_c(self, temperature_c: float | None) -> float:
+        """How far (degC) ``temperature_c`` lies outside the trusted range: negative below,
+        positive above, 0 inside (and for an unknown temperature)."""
+        if temperature_c is None or temperature_c != temperature_c:
+            return 0.0
+        lo, hi = self.trusted_c
+        if temperature_c < lo:
+            return temperature_c - lo
+        if temperature_c > hi:
+            return temperature_c - hi
+        return 0.0
+
+    def resistance_factor(self, temperature_c: float | None) -> float:
+        """The Arrhenius factor on every resistance at ``temperature_c`` (1.0 inside)."""
+        d = self.extrapolation_c(temperature_c)
+        if d == 0.0:
+            return 1.0
+        assert temperature_c is not None
+        f = self._factors.get(temperature_c)
+        if f is None:
+            edge_k = temperature_c - d + KELVIN_AT_0_C
+            t_k = temperature_c + KELVIN_AT_0_C
+            ea = self.params.extrapolation.activation_energy_j_per_mol
+            f = math.exp(ea / GAS_CONSTANT_J_PER_MOL_K * (1.0 / t_k - 1.0 / edge_k))
+            if len(self._factors) < 4096:
+                self._factors[temperature_c] = f
+        return f
 
     # -- parameters --------------------------------------------------------------------------
     def series_drop_v(
         self, soc: float, current_a: float, temperature_c: float | None = None
     ) -> float:
         """The instantaneous drop ``I R_0 + eta(I)`` in volts (module docstring)."""
+        f = self.resistance_factor(temperature_c)
         drop = current_a * self.params.r0_ohm.at(soc, temperature_c)
+        if f != 1.0:
+            drop *= f
         kin = self.params.kinetic
         if kin is not None and current_a != 0.0:
             i0 = kin.i0_a.at(soc, temperature_c)
+            if f != 1.0:
+                i0 /= f
             drop += kin.a_v.at(soc, temperature_c) * math.asinh(current_a / i0)
         return drop
 
@@ -207,10 +276,15 @@ class TheveninModel:
         self, soc: np.ndarray, current_a: float, temperature_c: float | None = None
     ) -> np.ndarray:
         """:meth:`series_drop_v` for an array of SoC at one current."""
+        f = self.resistance_factor(temperature_c)
         drop = current_a * self.params.r0_ohm.at_array(soc, temperature_c)
+        if f != 1.0:
+            drop = drop * f
         kin = self.params.kinetic
         if kin is not None and current_a != 0.0:
             i0 = kin.i0_a.at_array(soc, temperature_c)
+            if f != 1.0:
+                i0 = i0 / f
             drop = drop + kin.a_v.at_array(soc, temperature_c) * np.arcsinh(current_a / i0)
         return drop
 
@@ -220,7 +294,9 @@ class TheveninModel:
         """(R_i in ohms, tau_i = R_i C_i in seconds) of branch ``i``."""
         b = self.params.branches[i]
         r = b.r_ohm.at(soc, temperature_c)
-        return r, r * b.c_f.at(soc, temperature_c)
+        tau = r * b.c_f.at(soc, temperature_c)  # kept outside the range: C scales by 1/f
+        f = self.resistance_factor(temperature_c)
+        return (r * f if f != 1.0 else r), tau
 
     def surface_rest(self) -> tuple[float, ...]:
         """The lag's modes of a pack at rest (all 0; none without a :class:`SurfaceLag`)."""
@@ -269,7 +345,10 @@ class TheveninModel:
         if self.n_rc:
             rc = np.array([t.at_array(soc, temperature_c) for t in self._rc_tables])
             r, c = rc[: self.n_rc], rc[self.n_rc :]
-            a = np.exp(-dt_s / (r * c))
+            a = np.exp(-dt_s / (r * c))  # tau kept outside the range: C scales by 1/f
+            f = self.resistance_factor(temperature_c)
+            if f != 1.0:
+                r = r * f
             if self._saturating:
                 drive = np.empty_like(r)  # (n_rc, m): a linear branch's row is the current
                 for i, b in enumerate(self.params.branches):

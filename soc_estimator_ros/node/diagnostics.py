@@ -8,7 +8,10 @@ key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
   (implausible readings, ``tracking/gate.py``); samples missing from the stamps since the last
   report (input lost before the callback: queue overflow, a link dropping messages);
 * WARN / ERROR: SoC below ``low_soc_warn`` / ``low_soc_error``;
-* ERROR: pack voltage above or below the battery's voltage limits.
+* ERROR: pack voltage above or below the battery's voltage limits;
+* WARN: extrapolating: the temperature lies outside the range the battery file's model was
+  identified at (plus its margin; the model's resistances then follow Arrhenius, and the hybrid
+  weighs the voltage less).
 
 :class:`Diagnostics` keeps the counts of the previous report (what "since the last report"
 compares with); ``node/ros_node.py`` turns a :class:`Report` into a ``DiagnosticStatus``.
@@ -102,6 +105,19 @@ class Diagnostics:
                 problems.append((Level.ERROR, f"overvoltage {v:.3f} V > {lim.voltage_max_v:g} V"))
             elif v < lim.voltage_min_v:
                 problems.append((Level.ERROR, f"undervoltage {v:.3f} V < {lim.voltage_min_v:g} V"))
+        extrapolation_c = getattr(getattr(tr.estimator, "model", None), "extrapolation_c", None)
+        outside_c = 0.0
+        if last is not None and extrapolation_c is not None:
+            outside_c = float(extrapolation_c(last.temperature_c))
+            if outside_c != 0.0:
+                where = "below" if outside_c < 0 else "above"
+                problems.append(
+                    (
+                        Level.WARN,
+                        f"extrapolating: {abs(outside_c):.1f} degC {where} the identified "
+                        "temperature range",
+                    )
+                )
         level = max((lvl for lvl, _ in problems), default=Level.OK)
         message = "; ".join(m for _, m in problems) or "OK"
         nan = math.nan
@@ -121,6 +137,7 @@ class Diagnostics:
             *((f"rejected_{v.value}", gate.counts[v]) for v in REJECTIONS),
             ("temperature_ignored", gate.temperature_ignored),
             ("samples_missing", tr.missing_samples),
+            ("extrapolating_c", outside_c),
             ("sample_period_s", period if period is not None else nan),
             ("converged", str(bool(est and est.soc_std < CONVERGED_SOC_STD)).lower()),
             ("clip_count", tr.estimator.clip_count),

@@ -173,3 +173,65 @@ def test_a_surface_lag_needs_one_tau_and_soc_max_per_gain() -> None:
     for gains, taus, soc_max in (((), (), ()), ((0.004,), (60.0, 600.0), (1.0,))):
         with pytest.raises(ValueError, match="one tau and one soc_max per gain"):
             SurfaceLag(gain_soc_per_a=gains, tau_s=taus, soc_max=soc_max)
+
+
+def test_resistances_follow_arrhenius_outside_the_identified_temperatures() -> None:
+    """Inside the identified range (plus the margin) the model is the tables, to the bit;
+    beyond it every resistance carries exp(Ea/Rg (1/T - 1/T_edge)) and the time constants
+    stay (models/thevenin.py)."""
+    import math
+    from dataclasses import replace
+
+    from conftest import REPO_ROOT
+
+    from soc_estimator_ros.models.thevenin import (
+        GAS_CONSTANT_J_PER_MOL_K,
+        TemperatureExtrapolation,
+    )
+    from soc_estimator_ros.params import (
+        battery_params_to_dict,
+        load_battery_params,
+        parse_battery_params,
+    )
+
+    battery = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")  # 5 and 25 degC
+    model = battery.thevenin_model()
+    assert model.trusted_c == (2.0, 28.0)
+    assert model.resistance_factor(3.0) == 1.0 and model.resistance_factor(None) == 1.0
+    t = -10.0
+    expected = math.exp(30_000.0 / GAS_CONSTANT_J_PER_MOL_K * (1 / (t + 273.15) - 1 / 275.15))
+    assert model.resistance_factor(t) == pytest.approx(expected, rel=1e-12)
+    assert model.extrapolation_c(t) == -12.0 and model.extrapolation_c(30.0) == 2.0
+    r_edge, tau_edge = model.branch_at(0, 0.5, 2.0)
+    r_cold, tau_cold = model.branch_at(0, 0.5, t)
+    assert r_cold == pytest.approx(r_edge * expected, rel=1e-12)
+    assert tau_cold == pytest.approx(tau_edge, rel=1e-12)
+    drop_edge = model.series_drop_v(0.5, 1e-9, 2.0)  # ~ohmic at a tiny current
+    assert model.series_drop_v(0.5, 1e-9, t) == pytest.approx(drop_edge * expected, rel=1e-6)
+    # The file's key: absent means the default, and only a non-default value is written.
+    assert "extrapolation" not in battery_params_to_dict(battery)["thevenin"]
+    own = replace(
+        battery,
+        thevenin=replace(battery.thevenin, extrapolation=TemperatureExtrapolation(20_000.0, 1.0)),
+    )
+    tree = battery_params_to_dict(own)
+    assert tree["thevenin"]["extrapolation"] == {
+        "activation_energy_j_per_mol": 20_000.0,
+        "margin_c": 1.0,
+    }
+    assert parse_battery_params(tree, "t").thevenin.extrapolation.margin_c == 1.0
+
+
+def test_the_hybrid_weighs_the_voltage_less_outside_the_identified_temperatures() -> None:
+    from conftest import REPO_ROOT
+
+    from soc_estimator_ros.estimators import make_estimator
+    from soc_estimator_ros.params import load_battery_params
+
+    battery = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+    hybrid = make_estimator("hybrid", battery, 0.6, 0.1)
+    hybrid._temp_c = 20.0
+    inside = hybrid._measurement_variance(1.0)
+    hybrid._temp_c = -8.0  # 10 degC below the trusted 2 degC
+    scale = hybrid.tuning["extrapolation_scale_c"]
+    assert hybrid._measurement_variance(1.0) == pytest.approx(inside * (1 + (10 / scale) ** 2))
