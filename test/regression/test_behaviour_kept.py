@@ -6,6 +6,8 @@ gives the estimates it gave before, through the tracker (the node's and soc_repl
 initial std 0.1): for each ``<bag>/<estimator>``, SoC, its std and the state at every
 ``STEP``-th sample. The replay here goes through what soc_replay runs now (``Tracker``, input
 gate); test/ros/test_node.py holds the live node to the offline estimator on 3000 samples.
+At the split the whole runs were compared once as well (all 17 bags, 1.2 M samples, every
+estimator, SoC, std and state): the largest difference was 0.0, and the gate rejected none.
 """
 
 from __future__ import annotations
