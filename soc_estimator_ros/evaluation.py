@@ -155,3 +155,104 @@ def accuracy(
         window_s=window_s,
         n_samples=int(after.sum()),
     )
+
+
+#: The reference "reaches" a SoC within this much (fraction): the bundled field runs stop when
+#: the simulator's SoC reaches ``limits.soc_min``, one 10 Hz sample short of it at most
+#: (SLA run 1 ends at 0.400015 for 0.40).
+REACH_TOL_SOC = 1e-3
+
+
+def time_reaching(
+    t_s: np.ndarray, soc_ref: np.ndarray, soc_target: float, tol: float = REACH_TOL_SOC
+) -> float | None:
+    """The first time (s) the reference SoC is at or below ``soc_target + tol``; None if it
+    never is."""
+    hit = np.flatnonzero(np.asarray(soc_ref) <= soc_target + tol)
+    return float(t_s[hit[0]]) if hit.size else None
+
+
+def remaining_time_s(
+    t_s: np.ndarray, soc_ref: np.ndarray, soc_target: float, tol: float = REACH_TOL_SOC
+) -> np.ndarray:
+    """The actual time to empty: for each sample before the reference reaches ``soc_target``
+    (:func:`time_reaching`), the time until it does; NaN after, and everywhere when it never
+    does."""
+    t_s = np.asarray(t_s, dtype=float)
+    t_end = time_reaching(t_s, soc_ref, soc_target, tol)
+    if t_end is None:
+        return np.full(t_s.shape, math.nan)
+    return np.where(t_s <= t_end, t_end - t_s, math.nan)
+
+
+@dataclass(frozen=True)
+class TimeToEmptyScore:
+    """Predicted against actual time to empty over a run.
+
+    Attributes:
+        marks: per reference SoC mark (e.g. 0.8, 0.5, 0.3): (mark, predicted s, its std s,
+            actual s) at the first sample where the reference is at or below the mark; marks
+            the reference never reaches or that are at or below the target are left out.
+        n: predictions scored (finite prediction and std, the reference reaching the target
+            later).
+        within_1sigma, within_2sigma: the fraction of them with |error| <= 1 and 2 std.
+        median_abs_rel_error: the median of |predicted - actual| / actual.
+        infinite: predictions that were ``inf`` (no discharge load) while the reference still
+            had to reach the target.
+    """
+
+    marks: tuple[tuple[float, float, float, float], ...]
+    n: int
+    within_1sigma: float
+    within_2sigma: float
+    median_abs_rel_error: float
+    infinite: int
+
+
+def score_time_to_empty(
+    t_s: np.ndarray,
+    predicted_s: np.ndarray,
+    predicted_std_s: np.ndarray,
+    soc_ref: np.ndarray,
+    soc_target: float,
+    marks: tuple[float, ...] = (0.8, 0.5, 0.3),
+    every_s: float = 60.0,
+) -> TimeToEmptyScore | None:
+    """Score a run's time-to-empty predictions against the reference (None when the
+    reference never reaches ``soc_target``). The coverage counts one prediction per
+    ``every_s`` of time (the predictions of one minute are not independent)."""
+    t_s = np.asarray(t_s, dtype=float)
+    actual = remaining_time_s(t_s, soc_ref, soc_target)
+    if not np.any(np.isfinite(actual)):
+        return None
+    pred = np.asarray(predicted_s, dtype=float)
+    std = np.asarray(predicted_std_s, dtype=float)
+    got = []
+    for mark in marks:
+        if mark <= soc_target + REACH_TOL_SOC:
+            continue
+        hit = np.flatnonzero(np.asarray(soc_ref) <= mark)
+        if not hit.size or not math.isfinite(actual[hit[0]]):
+            continue
+        k = int(hit[0])
+        got.append((mark, float(pred[k]), float(std[k]), float(actual[k])))
+    picks: list[int] = []
+    next_t = -math.inf
+    for j in np.flatnonzero(np.isfinite(actual) & (actual > 0.0)):
+        if t_s[j] >= next_t:
+            picks.append(int(j))
+            next_t = t_s[j] + every_s
+    idx = np.array(picks, dtype=int)
+    infinite = int(np.sum(np.isinf(pred[idx])))
+    ok = idx[np.isfinite(pred[idx]) & np.isfinite(std[idx])]
+    if not ok.size:
+        return TimeToEmptyScore(tuple(got), 0, math.nan, math.nan, math.nan, infinite)
+    err = np.abs(pred[ok] - actual[ok])
+    return TimeToEmptyScore(
+        marks=tuple(got),
+        n=int(ok.size),
+        within_1sigma=float(np.mean(err <= std[ok])),
+        within_2sigma=float(np.mean(err <= 2.0 * std[ok])),
+        median_abs_rel_error=float(np.median(err / actual[ok])),
+        infinite=infinite,
+    )

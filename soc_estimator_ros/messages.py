@@ -2,8 +2,10 @@
 
 * ``sensor_msgs/BatteryState``: :func:`estimate_state` is the one rule for what the node
   publishes on ``battery/soc`` (and ``soc_replay --output-bag`` writes): percentage, charge,
-  capacity, ``power_supply_status`` from the current with a dead band, ``power_supply_health``
-  from the battery's limits, technology from its chemistry. :func:`bridge_state` is what a
+  capacity, ``power_supply_status`` (:func:`supply_status`: CHARGING above the charging
+  threshold, as Nav2's docking reads the current; DISCHARGING beyond the idle dead band; FULL
+  after a detected CC-CV end; UNKNOWN while the input is stale), ``power_supply_health`` from
+  the battery's limits, technology from its chemistry. :func:`bridge_state` is what a
   bridge publishes (the bundled bags' input, the live replay's input). Both return a
   :class:`BatteryStateFields`; ``recordings.bags`` turns it into a rosbags message and
   ``node.ros_messages`` into an rclpy one, field by field.
@@ -14,6 +16,9 @@
               x[0..n-1], P[0,0], P[0,1], ..., P[n-1,n-1]]      (P row-major)
 
   with ``layout.dim[0].label = "fields:" + ",".join(labels)``.
+* ``std_msgs/Float64MultiArray`` on ``battery/runtime``: what the robot asks next, one flat
+  vector per prediction (:data:`RUNTIME_FIELDS`, the same ``fields:`` label scheme): time to
+  empty and its std, time to full, the state of power, the low-battery level, the load.
 
 The message constants (status, health, technology) are read from the Jazzy message definitions
 (rosbags' type store), never typed by hand.
@@ -42,6 +47,7 @@ STATUS_UNKNOWN = int(_BS.POWER_SUPPLY_STATUS_UNKNOWN)
 STATUS_CHARGING = int(_BS.POWER_SUPPLY_STATUS_CHARGING)
 STATUS_DISCHARGING = int(_BS.POWER_SUPPLY_STATUS_DISCHARGING)
 STATUS_NOT_CHARGING = int(_BS.POWER_SUPPLY_STATUS_NOT_CHARGING)
+STATUS_FULL = int(_BS.POWER_SUPPLY_STATUS_FULL)
 HEALTH_UNKNOWN = int(_BS.POWER_SUPPLY_HEALTH_UNKNOWN)
 HEALTH_GOOD = int(_BS.POWER_SUPPLY_HEALTH_GOOD)
 HEALTH_OVERHEAT = int(_BS.POWER_SUPPLY_HEALTH_OVERHEAT)
@@ -49,6 +55,13 @@ HEALTH_DEAD = int(_BS.POWER_SUPPLY_HEALTH_DEAD)
 HEALTH_OVERVOLTAGE = int(_BS.POWER_SUPPLY_HEALTH_OVERVOLTAGE)
 HEALTH_COLD = int(_BS.POWER_SUPPLY_HEALTH_COLD)
 TECHNOLOGY_UNKNOWN = int(_BS.POWER_SUPPLY_TECHNOLOGY_UNKNOWN)
+
+#: Charge current (A, ROS sign: positive) above which the pack is CHARGING: Nav2's docking
+#: plugins (``SimpleChargingDock``) call a dock charging when ``current > charging_threshold``,
+#: 0.5 A by default, so the two agree on every message.
+CHARGING_CURRENT_A = 0.5
+#: |current| (A) at or below which an idle pack is NOT_CHARGING (the node's idle_current_a).
+IDLE_CURRENT_A = 0.1
 
 #: ``power_supply_technology`` per chemistry of the battery files (Jazzy: LIFE 4, VRLA 8, LION 2).
 TECHNOLOGY_BY_CHEMISTRY: dict[str, int] = {
@@ -88,12 +101,33 @@ class BatteryStateFields:
     frame_id: str = "battery"
 
 
-def supply_status(current_ros_a: float, idle_current_a: float) -> int:
-    """DISCHARGING / CHARGING beyond ``idle_current_a`` (A) either way, else NOT_CHARGING."""
+def supply_status(
+    current_ros_a: float,
+    idle_current_a: float,
+    charging_current_a: float | None = None,
+    *,
+    full: bool = False,
+    stale: bool = False,
+) -> int:
+    """``power_supply_status`` of one message (``current_ros_a`` in ROS's sign).
+
+    UNKNOWN when ``stale`` (the input went silent); FULL when a CC-CV end was detected and
+    the pack has not discharged since (``full``, ``runtime/charging.py``); CHARGING above
+    ``charging_current_a`` (A; ``None``: ``idle_current_a``, a bridge's plain sign rule);
+    DISCHARGING below ``-idle_current_a``; else NOT_CHARGING. CHARGING is exactly "current
+    above the threshold", what Nav2's docking reads, so ``IsBatteryCharging`` (status ==
+    CHARGING) and the dock agree on every message; a CV taper below the threshold is
+    NOT_CHARGING until it ends in FULL.
+    """
+    if stale:
+        return STATUS_UNKNOWN
+    if full:
+        return STATUS_FULL
+    charging = idle_current_a if charging_current_a is None else charging_current_a
+    if current_ros_a > charging:
+        return STATUS_CHARGING
     if current_ros_a < -idle_current_a:
         return STATUS_DISCHARGING
-    if current_ros_a > idle_current_a:
-        return STATUS_CHARGING
     return STATUS_NOT_CHARGING
 
 
@@ -119,7 +153,10 @@ def estimate_state(
     current_a: float,
     temperature_c: float = math.nan,
     *,
-    idle_current_a: float = 0.1,
+    idle_current_a: float = IDLE_CURRENT_A,
+    charging_current_a: float = CHARGING_CURRENT_A,
+    full: bool = False,
+    stale: bool = False,
     location: str = "",
     serial_number: str = "",
     frame_id: str = "battery",
@@ -127,9 +164,17 @@ def estimate_state(
     """The node's ``battery/soc`` message for a SoC estimate (``current_a`` in the core's sign).
 
     ``percentage`` is the SoC (0..1), ``charge`` SoC x ``capacity_ah``, ``capacity`` the file's
-    ``capacity_ah``, ``design_capacity`` its ``nominal_capacity_ah``.
+    ``capacity_ah``, ``design_capacity`` its ``nominal_capacity_ah``; the status is
+    :func:`supply_status`'s. ``stale``: the input went silent; the SoC is the last one carried
+    forward (never NaN: Nav2's ``IsBatteryLow`` never counts a NaN as low), status and health
+    UNKNOWN, and voltage, current and temperature NaN (not measured now).
     """
     current_ros = ros_current_from_core(current_a)
+    if stale:
+        voltage_v = current_ros = temperature_c = math.nan
+        health = HEALTH_UNKNOWN
+    else:
+        health = supply_health(voltage_v, temperature_c, battery.limits)
     return BatteryStateFields(
         stamp_ns=int(stamp_ns),
         voltage=float(voltage_v),
@@ -139,8 +184,10 @@ def estimate_state(
         charge=float(soc * battery.capacity_ah),
         capacity=float(battery.capacity_ah),
         design_capacity=float(battery.nominal_capacity_ah),
-        power_supply_status=supply_status(current_ros, idle_current_a),
-        power_supply_health=supply_health(voltage_v, temperature_c, battery.limits),
+        power_supply_status=supply_status(
+            current_ros, idle_current_a, charging_current_a, full=full, stale=stale
+        ),
+        power_supply_health=health,
         power_supply_technology=TECHNOLOGY_BY_CHEMISTRY.get(battery.chemistry, TECHNOLOGY_UNKNOWN),
         present=True,
         location=location,
@@ -244,3 +291,37 @@ def decode_estimate(msg: Any) -> dict[str, float]:
         raise ValueError(f"not a soc_estimate layout: {label!r}")
     names = label.removeprefix("fields:").split(",")
     return dict(zip(names, (float(v) for v in msg.data), strict=True))
+
+
+#: The ``battery/runtime`` vector, in order (``runtime/monitor.py``'s ``RuntimeReport``):
+#: times in s (``inf``: never, e.g. no discharge load; NaN: not applicable, e.g. time to full
+#: while not charging), currents in A as magnitudes, ``level`` the low-battery level's code
+#: (0 ok, 1 warn, 2 critical, 3 emergency), the load forecast in W (discharge positive).
+RUNTIME_FIELDS = (
+    "stamp_s",
+    "time_to_empty_s",
+    "time_to_empty_std_s",
+    "time_to_full_s",
+    "max_discharge_current_10s_a",
+    "max_discharge_current_60s_a",
+    "max_charge_current_10s_a",
+    "max_charge_current_60s_a",
+    "level",
+    "load_power_w",
+    "load_power_std_w",
+)
+
+
+def runtime_layout_label() -> str:
+    """``layout.dim[0].label`` of the runtime vector."""
+    return "fields:" + ",".join(RUNTIME_FIELDS)
+
+
+def runtime_vector(values: dict[str, float]) -> list[float]:
+    """The runtime vector from {label: value} (every label of :data:`RUNTIME_FIELDS`)."""
+    return [float(values[k]) for k in RUNTIME_FIELDS]
+
+
+def decode_runtime(msg: Any) -> dict[str, float]:
+    """A ``battery/runtime`` message (rclpy's or rosbags') as {label: value}."""
+    return decode_estimate(msg)

@@ -1,8 +1,9 @@
 """Battery parameter files: schema, dataclasses, and a loader that validates everything.
 
 One YAML file describes one battery (pack level): chemistry, capacity, limits, the OCV table,
-the Saft RC model, the n-RC Thevenin model as tables over SoC (temperature optional), and the
-default filter tunings. ``config/*.yaml`` are examples; docs/battery_files.md documents every key.
+the Saft RC model, the n-RC Thevenin model as tables over SoC (temperature optional), the
+default filter tunings, and optionally the low-battery levels (``levels:``) and the charger's
+CC-CV end (``charge:``). ``config/*.yaml`` are examples; docs/battery_files.md documents every key.
 
 Every problem in a file raises :class:`ParamFileError` with one message that names the file,
 the key (dotted path), the value found and what was expected, e.g.::
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,49 @@ class Limits:
 
 
 @dataclass(frozen=True)
+class LevelSettings:
+    """The optional ``levels:`` section: low-battery levels and how they are filtered.
+
+    Every entry is optional (None: the node parameter, else the rule of
+    ``runtime/levels.py``: warn ``critical + 0.10``, critical ``limits.soc_min``, emergency
+    ``critical - 0.05`` clipped at 0, hysteresis 0.02, debounce 30 s).
+
+    Attributes:
+        warn_soc, critical_soc, emergency_soc: the levels' SoC thresholds (fractions).
+        hysteresis_soc: how far above a threshold the SoC must rise to clear its level.
+        debounce_s: how long a level's condition must hold before the level changes (s).
+    """
+
+    warn_soc: float | None = None
+    critical_soc: float | None = None
+    emergency_soc: float | None = None
+    hysteresis_soc: float | None = None
+    debounce_s: float | None = None
+
+
+@dataclass(frozen=True)
+class ChargeSettings:
+    """The optional ``charge:`` section: the charger's CC-CV end, for FULL detection.
+
+    Every entry is optional (None: the rule of ``runtime/charging.py``: voltage
+    ``limits.voltage_max_v - 0.05 V x cells_in_series``, tolerance ``0.025 V x
+    cells_in_series``, taper 0.05 C, hold 60 s).
+
+    Attributes:
+        voltage_v: the charger's constant (CV) voltage, pack level (V).
+        voltage_tolerance_v: how far from it the terminal voltage may be at the CV end (V).
+        taper_c_rate: the charge current (in C of ``nominal_capacity_ah``) below which a CV
+            charge has ended.
+        hold_s: how long both must hold before FULL (s).
+    """
+
+    voltage_v: float | None = None
+    voltage_tolerance_v: float | None = None
+    taper_c_rate: float | None = None
+    hold_s: float | None = None
+
+
+@dataclass(frozen=True)
 class OcvTable:
     """OCV points: ``soc`` (fractions, increasing) and ``voltage_v`` (volts, increasing).
 
@@ -109,6 +153,8 @@ class BatteryParams:
     thevenin: TheveninParams
     filters: Mapping[str, Mapping[str, float | tuple[float, ...]]] = field(default_factory=dict)
     source: str = ""
+    levels: LevelSettings = field(default_factory=LevelSettings)
+    charge: ChargeSettings = field(default_factory=ChargeSettings)
 
     def ocv_curve(self) -> OcvCurve:
         """The battery's OCV curve."""
@@ -225,6 +271,62 @@ def _parse_filters(chk: _Checker, node: Any) -> dict[str, dict[str, float | tupl
                 parsed[str(name)] = chk.number(value, key)
         out[str(est)] = parsed
     return out
+
+
+def _optional_section(
+    chk: _Checker, root: Mapping[str, Any], name: str, bounds: dict[str, tuple[float, float]]
+) -> dict[str, float]:
+    """An optional section of optional numbers ``{key: (lo, hi)}``; unknown keys refused."""
+    node = root.get(name)
+    if node is None:
+        return {}
+    section = chk.mapping(node, name)
+    out: dict[str, float] = {}
+    for key, value in section.items():
+        if key not in bounds:
+            raise chk.fail(f"{name}.{key}", value, f"one of the keys {', '.join(bounds)}")
+        lo, hi = bounds[key]
+        out[str(key)] = chk.number(value, f"{name}.{key}", lo, hi)
+    return out
+
+
+def _parse_levels(chk: _Checker, root: Mapping[str, Any]) -> LevelSettings:
+    got = _optional_section(
+        chk,
+        root,
+        "levels",
+        {
+            "warn_soc": (0.0, 1.0),
+            "critical_soc": (0.0, 1.0),
+            "emergency_soc": (0.0, 1.0),
+            "hysteresis_soc": (0.0, 0.5),
+            "debounce_s": (0.0, 3600.0),
+        },
+    )
+    order = [k for k in ("warn_soc", "critical_soc", "emergency_soc") if k in got]
+    for upper, lower in zip(order[:-1], order[1:], strict=True):
+        if got[lower] > got[upper]:
+            raise chk.fail(
+                f"levels.{lower}", got[lower], f"a value <= levels.{upper} ({got[upper]:g})"
+            )
+    return LevelSettings(**got)
+
+
+def _parse_charge(chk: _Checker, root: Mapping[str, Any], limits: Limits) -> ChargeSettings:
+    got = _optional_section(
+        chk,
+        root,
+        "charge",
+        {
+            "voltage_v": (limits.voltage_min_v, limits.voltage_max_v),
+            "voltage_tolerance_v": (0.0, 0.5 * (limits.voltage_max_v - limits.voltage_min_v)),
+            "taper_c_rate": (1e-4, 1.0),
+            "hold_s": (0.0, 3600.0),
+        },
+    )
+    if "voltage_tolerance_v" in got and not got["voltage_tolerance_v"] > 0.0:
+        raise chk.fail("charge.voltage_tolerance_v", got["voltage_tolerance_v"], "a number > 0")
+    return ChargeSettings(**got)
 
 
 def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
@@ -394,6 +496,8 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         )
 
     filters = _parse_filters(chk, root.get("filters", {}))
+    levels = _parse_levels(chk, root)
+    charge = _parse_charge(chk, root, limits)
     return BatteryParams(
         name=name,
         chemistry=chemistry,
@@ -413,6 +517,8 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         ),
         filters=filters,
         source=source_text,
+        levels=levels,
+        charge=charge,
     )
 
 
@@ -485,4 +591,8 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     if params.ocv.temperature_c:
         out["ocv"]["temperature_c"] = list(params.ocv.temperature_c)
         out["ocv"]["offset_v"] = [list(r) for r in params.ocv.offset_v]
+    for name, section in (("levels", params.levels), ("charge", params.charge)):
+        given = {k: v for k, v in asdict(section).items() if v is not None}
+        if given:
+            out[name] = given
     return out

@@ -1,7 +1,8 @@
 """The data a recording holds and the data an estimator produces over it (plain numpy, no ROS).
 
 :class:`BatterySeries` is one recording (a bag or a CSV), aligned, in stamp order;
-:class:`EstimateSeries` is an estimator's output over a recording, one row per input sample.
+:class:`EstimateSeries` is an estimator's output over a recording, one row per input sample;
+:class:`RuntimeSeries` the runtime monitor's predictions over it, one row per input sample too.
 """
 
 from __future__ import annotations
@@ -75,3 +76,34 @@ class EstimateSeries:
     x: np.ndarray  # (n, dim_x): the state after each sample
     p: np.ndarray  # (n, dim_x, dim_x): its covariance
     state_names: tuple[str, ...]
+
+
+#: The runtime predictions a replay keeps per sample (``soc_replay --output`` columns first).
+RUNTIME_COLUMNS = (
+    "time_to_empty_s",
+    "time_to_empty_std_s",
+    "time_to_full_s",
+    "max_discharge_current_10s_a",
+    "max_discharge_current_60s_a",
+    "max_charge_current_10s_a",
+    "level",
+)
+
+
+@dataclass(frozen=True)
+class RuntimeSeries:
+    """The runtime monitor over a run, one row per input sample: the latest prediction
+    (``runtime/monitor.py``; NaN before the first), and the FULL status at each sample.
+
+    Attributes:
+        values: one array per name of :data:`RUNTIME_COLUMNS`.
+        full: FULL held after the sample (``power_supply_status``).
+        soc_empty: the SoC the time to empty runs to (``limits.soc_min``).
+    """
+
+    values: dict[str, np.ndarray]
+    full: np.ndarray
+    soc_empty: float
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.values[name]

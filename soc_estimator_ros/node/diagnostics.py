@@ -3,15 +3,21 @@
 One status per report (1 Hz): level OK / WARN / ERROR, a message joining every problem, and
 key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
 
-* WARN: no sample accepted yet, or none for ``stale_timeout_s`` (stale input);
+* WARN: no sample accepted yet;
+* ERROR: none accepted for ``stale_timeout_s`` (stale input: the bridge went silent, as
+  Husarion's battery node reports a silent source); the SoC is then the last one carried
+  forward and its std grows over the silence (``Tracker.carried_forward``);
 * WARN: samples rejected since the last report; temperatures ignored since the last report
   (implausible readings, ``tracking/gate.py``); samples missing from the stamps since the last
   report (input lost before the callback: queue overflow, a link dropping messages);
-* WARN / ERROR: SoC below ``low_soc_warn`` / ``low_soc_error``;
+* WARN / ERROR: the low-battery level (``runtime/levels.py``) WARN / CRITICAL or EMERGENCY;
 * ERROR: pack voltage above or below the battery's voltage limits;
 * WARN: extrapolating: the temperature lies outside the range the battery file's model was
   identified at (plus its margin; the model's resistances then follow Arrhenius, and the hybrid
   weighs the voltage less).
+
+The values hold the estimate, the counts, the level and its thresholds, the charge phase, and
+the runtime monitor's latest prediction under ``battery/runtime``'s labels.
 
 :class:`Diagnostics` keeps the counts of the previous report (what "since the last report"
 compares with); ``node/ros_node.py`` turns a :class:`Report` into a ``DiagnosticStatus``.
@@ -24,6 +30,8 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any
 
+from ..messages import RUNTIME_FIELDS
+from ..runtime import BatteryLevel
 from ..tracking import REJECTIONS, Tracker
 from ..units import NS_PER_S, ros_current_from_core
 
@@ -70,21 +78,22 @@ class Diagnostics:
         self,
         now_steady_s: float,
         stale_timeout_s: float,
-        low_soc: tuple[float, float],
         extra: list[tuple[str, Any]] | None = None,
     ) -> Report:
-        """The status now; ``low_soc`` = (warn, error) thresholds; ``extra`` key-values."""
+        """The status now; ``extra`` key-values."""
         tr = self.tracker
         lim = tr.battery.limits
         est = tr.last_estimate
         last = tr.last_sample
         problems: list[tuple[Level, str]] = []
+        stale = False
         if tr.last_accept_steady_s is None:
             if now_steady_s - self.start_steady_s > stale_timeout_s:
                 problems.append((Level.WARN, "no input sample accepted yet"))
         elif now_steady_s - tr.last_accept_steady_s > stale_timeout_s:
+            stale = True
             silent = now_steady_s - tr.last_accept_steady_s
-            problems.append((Level.WARN, f"stale input: no sample for {silent:.1f} s"))
+            problems.append((Level.ERROR, f"stale input: no sample for {silent:.1f} s"))
         gate = tr.gate
         for key, count, what in (
             ("rejected", gate.rejected_count, "samples rejected recently"),
@@ -94,12 +103,19 @@ class Diagnostics:
             new = self._new_since_last(key, count)
             if new > 0:
                 problems.append((Level.WARN, f"{new} {what}"))
+        rt = tr.runtime
+        th = rt.thresholds
         if est is not None and last is not None:
-            warn_soc, error_soc = low_soc
-            if est.soc < error_soc:
-                problems.append((Level.ERROR, f"low SoC {est.soc:.3f} < {error_soc:.3f}"))
-            elif est.soc < warn_soc:
-                problems.append((Level.WARN, f"low SoC {est.soc:.3f} < {warn_soc:.3f}"))
+            battery_level = rt.level
+            if battery_level is not BatteryLevel.OK:
+                severity = Level.WARN if battery_level is BatteryLevel.WARN else Level.ERROR
+                problems.append(
+                    (
+                        severity,
+                        f"low SoC {est.soc:.3f}: level {battery_level.label} "
+                        f"(below {th.threshold(battery_level):.3f})",
+                    )
+                )
             v = last.voltage_v
             if v > lim.voltage_max_v:
                 problems.append((Level.ERROR, f"overvoltage {v:.3f} V > {lim.voltage_max_v:g} V"))
@@ -122,12 +138,19 @@ class Diagnostics:
         message = "; ".join(m for _, m in problems) or "OK"
         nan = math.nan
         period = tr.sample_period_s
+        soc, soc_std, silent_s = tr.carried_forward(now_steady_s)
+        if est is None:
+            soc = soc_std = nan
+        elif not stale:
+            soc, soc_std = est.soc, est.soc_std
         values: list[tuple[str, Any]] = [
             ("estimator", tr.estimator_name),
             ("battery", tr.battery.name),
             ("battery_file", self.battery_file),
-            ("soc", est.soc if est else nan),
-            ("soc_std", est.soc_std if est else nan),
+            ("soc", soc),
+            ("soc_std", soc_std),
+            ("stale", str(stale).lower()),
+            ("silent_s", silent_s),
             ("nis", est.nis if est else nan),
             ("innovation_v", est.innovation_v if est else nan),
             ("voltage_v", last.voltage_v if last else nan),
@@ -145,6 +168,17 @@ class Diagnostics:
                 "last_stamp_s",
                 f"{last.stamp_ns / NS_PER_S:.3f}" if last is not None else "none",
             ),
+        ]
+        predicted = rt.report.fields() if rt.report is not None else {}
+        predicted["level"] = int(rt.level)  # the level now, not at the last prediction
+        values += [(k, predicted.get(k, nan)) for k in RUNTIME_FIELDS if k != "stamp_s"]
+        values += [
+            ("level_name", rt.level.label),
+            ("level_warn_soc", th.warn_soc),
+            ("level_critical_soc", th.critical_soc),
+            ("level_emergency_soc", th.emergency_soc),
+            ("charge_phase", rt.charge.phase.value),
+            ("charge_voltage_v", rt.charge.spec.voltage_v),
         ]
         if hasattr(tr.estimator, "nis_avg"):
             values.append(("nis_avg", float(tr.estimator.nis_avg)))

@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import SocEstimatorError
 from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS, PRESETS
+from ..params import LevelSettings
 from ..resources import BUNDLED_FILES, DEFAULT_CHEMISTRY, PACKAGE
 
 NODE_NAME = "soc_estimator_node"
@@ -85,6 +86,12 @@ PARAMETERS: tuple[ParamSpec, ...] = (
         "estimate_topic",
         "battery/soc_estimate",
         "output std_msgs/Float64MultiArray topic (full estimator state, labelled layout)",
+    ),
+    ParamSpec(
+        "runtime_topic",
+        "battery/runtime",
+        "output std_msgs/Float64MultiArray topic (time to empty/full, state of power, level; "
+        "labelled layout), once a second of sample time",
     ),
     ParamSpec(
         "current_topic",
@@ -208,23 +215,71 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "low_soc_warn",
         -1.0,
-        "diagnostics WARN below this SoC; < 0 = limits.soc_min + 0.1",
+        "level WARN (diagnostics WARN) below this SoC; < 0 = the battery file's "
+        "levels.warn_soc, else the critical level + 0.1",
         read_only=False,
         float_range=(-1.0, 1.0),
     ),
     ParamSpec(
         "low_soc_error",
         -1.0,
-        "diagnostics ERROR below this SoC; < 0 = limits.soc_min",
+        "level CRITICAL (diagnostics ERROR) below this SoC; < 0 = the battery file's "
+        "levels.critical_soc, else limits.soc_min",
         read_only=False,
         float_range=(-1.0, 1.0),
     ),
     ParamSpec(
+        "low_soc_emergency",
+        -1.0,
+        "level EMERGENCY (diagnostics ERROR) below this SoC; < 0 = the battery file's "
+        "levels.emergency_soc, else the critical level - 0.05 (at least 0)",
+        read_only=False,
+        float_range=(-1.0, 1.0),
+    ),
+    ParamSpec(
+        "low_soc_hysteresis",
+        -1.0,
+        "a level clears once the SoC is this far above its threshold; < 0 = the battery "
+        "file's levels.hysteresis_soc, else 0.02",
+        read_only=False,
+        float_range=(-1.0, 0.5),
+    ),
+    ParamSpec(
+        "low_soc_debounce_s",
+        -1.0,
+        "a level changes once its condition held this long (s, sample time); < 0 = the "
+        "battery file's levels.debounce_s, else 30",
+        read_only=False,
+        float_range=(-1.0, 3600.0),
+    ),
+    ParamSpec(
         "idle_current_a",
         0.1,
-        "|current| (A) at or below which power_supply_status is NOT_CHARGING",
+        "|current| (A) at or below which power_supply_status is NOT_CHARGING (DISCHARGING "
+        "beyond it); a FULL pack is released when its low-passed discharge exceeds it",
         read_only=False,
         float_range=(0.0, 100.0),
+    ),
+    ParamSpec(
+        "charging_current_a",
+        0.5,
+        "charge current (A) above which power_supply_status is CHARGING (Nav2's docking "
+        "charging_threshold)",
+        float_range=(0.0, 100.0),
+    ),
+    ParamSpec(
+        "runtime_window_s",
+        300.0,
+        "the time-to-empty load forecast: the mean discharge power over this window (s)",
+        float_range=(10.0, 86400.0),
+    ),
+    ParamSpec(
+        "mission_power_w",
+        0.0,
+        "the load (W) the time to empty assumes, set by the robot for its mission; "
+        "0 = the mean over runtime_window_s",
+        read_only=False,
+        float_range=(0.0, 100000.0),
     ),
     ParamSpec(
         "reset_soc_to",
@@ -278,8 +333,8 @@ def usage() -> str:
         f"usage: ros2 run {PACKAGE} {NODE_NAME} [--ros-args -p NAME:=VALUE ...]",
         "",
         "Live battery SoC estimator: subscribes to battery/state (sensor_msgs/BatteryState),",
-        "publishes battery/soc (BatteryState), battery/soc_estimate (Float64MultiArray) and",
-        "/diagnostics; service ~/reset_soc_from_ocv (std_srvs/Trigger).",
+        "publishes battery/soc (BatteryState), battery/soc_estimate and battery/runtime",
+        "(Float64MultiArray) and /diagnostics; service ~/reset_soc_from_ocv (std_srvs/Trigger).",
         "",
         "parameters:",
     ]
@@ -303,3 +358,24 @@ def parameter_table() -> str:
         runtime = "" if spec.read_only else "yes"
         rows.append(f"| `{spec.name}` | `{spec.default!r}` | {runtime} | {desc} |")
     return "\n".join(rows)
+
+
+#: The level parameters and the ``LevelSettings`` entries they override.
+LEVEL_PARAMETERS = {
+    "low_soc_warn": "warn_soc",
+    "low_soc_error": "critical_soc",
+    "low_soc_emergency": "emergency_soc",
+    "low_soc_hysteresis": "hysteresis_soc",
+    "low_soc_debounce_s": "debounce_s",
+}
+
+
+def level_overrides(values: dict[str, float]) -> LevelSettings:
+    """The level parameters as overrides: a value < 0 leaves the entry to the battery file
+    (or the rule)."""
+    return LevelSettings(
+        **{
+            field_name: (None if float(values[name]) < 0.0 else float(values[name]))
+            for name, field_name in LEVEL_PARAMETERS.items()
+        }
+    )

@@ -9,7 +9,16 @@ from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
 
 from ..estimators.base import Estimate
-from ..messages import BatteryStateFields, estimate_labels, estimate_vector, layout_label
+from ..messages import (
+    RUNTIME_FIELDS,
+    BatteryStateFields,
+    estimate_labels,
+    estimate_vector,
+    layout_label,
+    runtime_layout_label,
+    runtime_vector,
+)
+from ..runtime import RuntimeReport
 from ..units import ns_to_stamp
 
 
@@ -36,4 +45,14 @@ def estimate_msg(stamp_s: float, est: Estimate) -> Float64MultiArray:
     arr.layout.dim = [MultiArrayDimension(label=layout_label(est.state_names), size=n, stride=n)]
     arr.layout.data_offset = 0
     arr.data = estimate_vector(stamp_s, est)
+    return arr
+
+
+def runtime_msg(report: RuntimeReport) -> Float64MultiArray:
+    """The labelled runtime vector (``messages.RUNTIME_FIELDS``) as a ``Float64MultiArray``."""
+    n = len(RUNTIME_FIELDS)
+    arr = Float64MultiArray()
+    arr.layout.dim = [MultiArrayDimension(label=runtime_layout_label(), size=n, stride=n)]
+    arr.layout.data_offset = 0
+    arr.data = runtime_vector(report.fields())
     return arr

@@ -8,10 +8,14 @@ Topics, parameters, services and persistence are documented in docs/node.md. In 
 * every sample goes through the ROS-free :class:`~soc_estimator_ros.tracking.Tracker` (input
   gate, estimator, initialization, re-basing), the path ``soc_replay`` uses too;
 * outputs ``battery/soc`` (``BatteryState``, the one rule of ``messages.estimate_state``),
-  ``battery/soc_estimate`` (labelled ``Float64MultiArray``), ``/diagnostics`` (1 Hz,
-  ``node/diagnostics.py``);
+  ``battery/soc_estimate`` (labelled ``Float64MultiArray``), ``battery/runtime`` (the tracker's
+  runtime monitor: time to empty and full, state of power, level; once a second of sample
+  time), ``/diagnostics`` (1 Hz, ``node/diagnostics.py``);
+* stale input: no sample accepted for ``stale_timeout_s`` -> ``battery/soc`` keeps coming at
+  ``publish_rate_hz`` (1 Hz when 0) with status UNKNOWN and the last SoC, diagnostics ERROR;
 * run-time control: parameter ``estimator`` (switch), ``reset_soc_to``, service
-  ``~/reset_soc_from_ocv``; the state is saved every ``save_period_s`` and on shutdown.
+  ``~/reset_soc_from_ocv``, ``mission_power_w``, the ``low_soc_*`` levels; the state is saved
+  every ``save_period_s`` and on shutdown.
 
 The callbacks only convert and delegate; parameters are validated in one callback and applied
 in another (as ros2/demos do). All tracker access is serialized by one lock, so the node is safe
@@ -46,6 +50,7 @@ from ..estimators.base import Estimator
 from ..messages import estimate_state
 from ..params import BatteryParams, load_battery_params
 from ..resources import default_battery_file
+from ..runtime import LevelThresholds, RuntimeConfig, RuntimeReport
 from ..tracking import (
     Event,
     GateConfig,
@@ -62,14 +67,16 @@ from ..units import NS_PER_S, CurrentSign, core_current_from, core_current_from_
 from .diagnostics import Diagnostics
 from .parameters import (
     KNOWN_ESTIMATORS,
+    LEVEL_PARAMETERS,
     NODE_NAME,
     PARAMETERS,
     NodeConfigError,
     default_state_file,
+    level_overrides,
     parse_initial_soc,
     usage,
 )
-from .ros_messages import battery_state_msg, estimate_msg
+from .ros_messages import battery_state_msg, estimate_msg, runtime_msg
 
 #: How often (s) each throttled event (a rejection reason, ...) may be logged.
 REJECTION_LOG_PERIOD_S = 5.0
@@ -118,6 +125,7 @@ class SocEstimatorNode(Node):
         self._pending_publish = False
         self._saved_revision = 0
         self._pending_switch: Estimator | None = None
+        self._pending_runtime: RuntimeReport | None = None
         self._last_header: Header | None = None
         self._last_location = ""
         self._last_serial = ""
@@ -128,6 +136,9 @@ class SocEstimatorNode(Node):
         self._publish_rate_hz: float = p("publish_rate_hz")
         if self._publish_rate_hz > 0.0:
             self.create_timer(1.0 / self._publish_rate_hz, self._on_publish_timer)
+        # Stale input: keep battery/soc coming (steady clock: the silence is wall time).
+        stale_period = 1.0 / self._publish_rate_hz if self._publish_rate_hz > 0.0 else 1.0
+        self.create_timer(stale_period, self._on_stale_timer, clock=steady)
         self._save_timer = None
         if self.state_file is not None:
             for tmp in remove_stale_temp_files(self.state_file):
@@ -169,12 +180,25 @@ class SocEstimatorNode(Node):
         except ValueError as exc:
             raise NodeConfigError(f"input gate: {exc}") from exc
         name = p("estimator")
+        levels = level_overrides({k: p(k) for k in LEVEL_PARAMETERS})
+        try:
+            LevelThresholds.resolve(self.battery.limits, self.battery.levels, levels)
+        except ValueError as exc:
+            raise NodeConfigError(f"low_soc_*: {exc}") from exc
+        runtime = RuntimeConfig(
+            window_s=p("runtime_window_s"),
+            mission_power_w=p("mission_power_w"),
+            idle_current_a=p("idle_current_a"),
+            charging_current_a=p("charging_current_a"),
+            levels=levels,
+        )
         config = TrackerConfig(
             estimator=name,
             initial_soc=parse_initial_soc(p("initial_soc")),
             initial_soc_std=p("initial_soc_std"),
             ocv_voltage_std_v=p("ocv_voltage_std_v"),
             rebase_after_s=p("stale_timeout_s"),
+            runtime=runtime,
         )
         resume = None
         if self.state_file is not None:
@@ -202,6 +226,7 @@ class SocEstimatorNode(Node):
         out_qos = self._qos(reliable=True)
         self._soc_pub = self.create_publisher(BatteryState, p("output_topic"), out_qos)
         self._est_pub = self.create_publisher(Float64MultiArray, p("estimate_topic"), out_qos)
+        self._runtime_pub = self.create_publisher(Float64MultiArray, p("runtime_topic"), out_qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         reliability = p("input_reliability")
         if reliability not in ("best_effort", "reliable"):
@@ -281,6 +306,8 @@ class SocEstimatorNode(Node):
                 self._last_header = header
                 self._last_location, self._last_serial = location, serial_number
                 self._pending_publish = True
+                if result.runtime is not None:
+                    self._pending_runtime = result.runtime
                 if self._publish_rate_hz <= 0.0:
                     self._publish_locked()
         return result.verdict
@@ -323,18 +350,47 @@ class SocEstimatorNode(Node):
             last.current_a,
             last.temperature_c,
             idle_current_a=self._param("idle_current_a"),
+            charging_current_a=self._param("charging_current_a"),
+            full=self.tracker.runtime.full,
             location=self._param("location") or self._last_location,
             serial_number=self._param("serial_number") or self._last_serial,
         )
         self._soc_pub.publish(battery_state_msg(fields, self._last_header))
         self._est_pub.publish(estimate_msg(last.stamp_ns / NS_PER_S, est))
+        if self._pending_runtime is not None:
+            self._runtime_pub.publish(runtime_msg(self._pending_runtime))
+            self._pending_runtime = None
 
-    def _low_soc_thresholds(self) -> tuple[float, float]:
-        soc_min = self.battery.limits.soc_min
-        warn, error = self._param("low_soc_warn"), self._param("low_soc_error")
-        error = soc_min if error < 0.0 else error
-        warn = min(soc_min + 0.1, 1.0) if warn < 0.0 else warn
-        return warn, error
+    def stale_for(self, now_steady_s: float) -> float | None:
+        """Seconds without an accepted sample beyond ``stale_timeout_s`` (None: not stale,
+        or no sample yet)."""
+        last = self.tracker.last_accept_steady_s
+        if last is None or now_steady_s - last <= self._param("stale_timeout_s"):
+            return None
+        return now_steady_s - last
+
+    def _on_stale_timer(self) -> None:
+        """While the input is stale: ``battery/soc`` with the last SoC, status UNKNOWN."""
+        with self._lock:
+            if self.stale_for(time.monotonic()) is None:
+                return
+            last = self.tracker.last_sample
+            if last is None:
+                return
+            header = Header()
+            header.stamp = self.get_clock().now().to_msg()
+            header.frame_id = self._last_header.frame_id if self._last_header else "battery"
+            fields = estimate_state(
+                self.battery,
+                self.tracker.soc,
+                0,
+                last.voltage_v,
+                last.current_a,
+                stale=True,
+                location=self._param("location") or self._last_location,
+                serial_number=self._param("serial_number") or self._last_serial,
+            )
+            self._soc_pub.publish(battery_state_msg(fields, header))
 
     def _publish_diagnostics(self) -> None:
         arr = DiagnosticArray()
@@ -348,9 +404,8 @@ class SocEstimatorNode(Node):
             extra: list[tuple[str, Any]] = []
             if self.pairer is not None:
                 extra = [("pairs", self.pairer.paired), ("unpaired_dropped", self.pairer.dropped)]
-            report = self._diagnostics.report(
-                time.monotonic(), self._param("stale_timeout_s"), self._low_soc_thresholds(), extra
-            )
+            stale_timeout_s = self._param("stale_timeout_s")
+            report = self._diagnostics.report(time.monotonic(), stale_timeout_s, extra)
         return DiagnosticStatus(
             level=bytes([int(report.level)]),
             name=f"{self.get_name()}: SoC estimator",
@@ -401,6 +456,15 @@ class SocEstimatorNode(Node):
                     return SetParametersResult(
                         successful=False, reason="reset_soc_to must be in [0, 1] (or -1)"
                     )
+        if any(param.name in LEVEL_PARAMETERS for param in params):
+            values = {k: self._param(k) for k in LEVEL_PARAMETERS}
+            values.update({q.name: q.value for q in params if q.name in LEVEL_PARAMETERS})
+            try:
+                LevelThresholds.resolve(
+                    self.battery.limits, self.battery.levels, level_overrides(values)
+                )
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
@@ -415,6 +479,22 @@ class SocEstimatorNode(Node):
                 with self._lock:
                     self.tracker.reset_soc(soc, std)
                 self.get_logger().info(f"SoC reset to {soc:.4f} (std {std:.4f}) by reset_soc_to")
+            elif param.name == "mission_power_w":
+                with self._lock:
+                    self.tracker.runtime.set_mission_power(float(param.value))
+            elif param.name == "idle_current_a":
+                with self._lock:
+                    self.tracker.runtime.set_idle_current(float(param.value))
+        if any(param.name in LEVEL_PARAMETERS for param in params):
+            # Post-set: every level parameter of the call is in effect; validated above.
+            overrides = level_overrides({k: self._param(k) for k in LEVEL_PARAMETERS})
+            with self._lock:
+                th = self.tracker.runtime.set_levels(overrides)
+            self.get_logger().info(
+                f"battery levels: warn {th.warn_soc:.3f}, critical {th.critical_soc:.3f}, "
+                f"emergency {th.emergency_soc:.3f}, hysteresis {th.hysteresis_soc:.3f}, "
+                f"debounce {th.debounce_s:g} s"
+            )
 
     # -- persistence and shutdown -------------------------------------------------------------
     def saved_state(self) -> SavedState | None:

@@ -149,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
             live=args.live,
             live_rate=args.rate,
             extras=extras,
+            runtime=bool(args.output or args.plot or args.plot_dir),
         )
         jobs = [replace(base, path=p) for p in inputs]
         if len(jobs) > 1 and args.jobs > 1 and not args.live:

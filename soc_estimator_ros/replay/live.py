@@ -53,10 +53,15 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from ..messages import bridge_state, decode_estimate  # noqa: E402
+from ..messages import STATUS_FULL, bridge_state, decode_estimate, decode_runtime  # noqa: E402
 from ..node.ros_messages import battery_state_msg  # noqa: E402
 from ..node.ros_node import SocEstimatorNode  # noqa: E402
-from ..series import BatterySeries, EstimateSeries  # noqa: E402
+from ..series import (  # noqa: E402
+    RUNTIME_COLUMNS,
+    BatterySeries,
+    EstimateSeries,
+    RuntimeSeries,
+)
 from ..tracking import TrackerConfig  # noqa: E402
 from ..units import NS_PER_S, ns_to_stamp  # noqa: E402
 
@@ -110,8 +115,11 @@ class NodeLink:
     """A helper node beside a ``soc_estimator_node``: publishes its input (and ``/clock``),
     records its outputs, and spins both from the calling thread.
 
-    ``soc`` and ``est`` collect ``battery/soc`` and ``battery/soc_estimate`` in arrival order;
-    ``diag`` collects ``(monotonic time, DiagnosticArray)``.
+    ``soc`` and ``est`` collect ``battery/soc`` and ``battery/soc_estimate`` in arrival order,
+    ``runtime`` the ``battery/runtime`` predictions; ``soc_stale`` collects the node's
+    keep-alive ``battery/soc`` messages while its input is stale (status UNKNOWN: no new
+    estimate, kept apart so ``soc`` holds one message per estimate); ``diag`` collects
+    ``(monotonic time, DiagnosticArray)``.
     """
 
     context: Context
@@ -120,6 +128,8 @@ class NodeLink:
     batch: int = 100
     soc: list[BatteryState] = field(default_factory=list)
     est: list[Float64MultiArray] = field(default_factory=list)
+    runtime: list[Float64MultiArray] = field(default_factory=list)
+    soc_stale: list[BatteryState] = field(default_factory=list)
     diag: list[tuple[float, Any]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -130,9 +140,12 @@ class NodeLink:
         )
         self.pub = self.io.create_publisher(BatteryState, "battery/state", RELIABLE)
         self.clock_pub = self.io.create_publisher(Clock, "/clock", 10)
-        self.io.create_subscription(BatteryState, "battery/soc", self.soc.append, RELIABLE)
+        self.io.create_subscription(BatteryState, "battery/soc", self._on_soc, RELIABLE)
         self.io.create_subscription(
             Float64MultiArray, "battery/soc_estimate", self.est.append, RELIABLE
+        )
+        self.io.create_subscription(
+            Float64MultiArray, "battery/runtime", self.runtime.append, RELIABLE
         )
         self.io.create_subscription(
             DiagnosticArray, "/diagnostics", lambda m: self.diag.append((time.monotonic(), m)), 10
@@ -141,6 +154,12 @@ class NodeLink:
         self.executor.add_node(self.node)
         self.executor.add_node(self.io)
         self.closed = False
+
+    def _on_soc(self, msg: BatteryState) -> None:
+        if msg.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_UNKNOWN:
+            self.soc_stale.append(msg)
+        else:
+            self.soc.append(msg)
 
     def wait_matched(self, needs_input: bool = True, timeout_s: float = 10.0) -> bool:
         """Until the node's outputs (and, with ``needs_input``, its input) are matched."""
@@ -243,8 +262,9 @@ def replay_live(
     config: TrackerConfig,
     rate: float | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[EstimateSeries, str]:
-    """Every sample of ``series`` through a live node; its outputs and the start it used.
+) -> tuple[EstimateSeries, str, RuntimeSeries]:
+    """Every sample of ``series`` through a live node; its estimates, the start it used, and
+    its runtime predictions (``battery/runtime``) and FULL status (``battery/soc``).
 
     The node starts as ``config`` says (``initial_soc``, its std, the estimator). Raises
     ``RuntimeError`` when the node does not judge every sample within 30 s of its batch.
@@ -281,7 +301,13 @@ def replay_live(
                 used = node.tracker.samples_used
                 if not link.spin_until(lambda: len(link.est) >= used and len(link.soc) >= used):
                     raise RuntimeError(f"the node published {len(link.est)} of {used} estimates")
-                return estimates_from(link, series), f"as the node: initial_soc={init}"
+                # The runtime report of the last sample is published with it (or not at all).
+                link.spin_for(0.05)
+                return (
+                    estimates_from(link, series),
+                    f"as the node: initial_soc={init}",
+                    runtime_from(link, series, node.battery.limits.soc_min),
+                )
             finally:
                 link.close()
     finally:
@@ -325,3 +351,27 @@ def estimates_from(link: NodeLink, series: BatterySeries) -> EstimateSeries:
         p=p,
         state_names=names,
     )
+
+
+def runtime_from(link: NodeLink, series: BatterySeries, soc_empty: float) -> RuntimeSeries:
+    """The node's ``battery/runtime`` and FULL status as a ``RuntimeSeries``, one row per input
+    sample (a report holds from its sample's stamp on, as the offline replay keeps it)."""
+    n = len(series)
+    # Matched to the microsecond: a float64 stamp in seconds holds 1e18 ns to about 0.2 us.
+    by_stamp = {round(r["stamp_s"] * 1e6): r for r in map(decode_runtime, link.runtime)}
+    full_by_stamp = {
+        m.header.stamp.sec * NS_PER_S + m.header.stamp.nanosec: m.power_supply_status == STATUS_FULL
+        for m in link.soc
+    }
+    values = {k: np.full(n, np.nan) for k in RUNTIME_COLUMNS}
+    full = np.zeros(n, dtype=bool)
+    last: dict[str, float] | None = None
+    is_full = False
+    for k, stamp in enumerate(series.stamp_ns):
+        last = by_stamp.get(round(int(stamp) / 1000), last)
+        is_full = full_by_stamp.get(int(stamp), is_full)
+        full[k] = is_full
+        if last is not None:
+            for name in RUNTIME_COLUMNS:
+                values[name][k] = last[name]
+    return RuntimeSeries(values, full, soc_empty)

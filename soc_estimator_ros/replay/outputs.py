@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..evaluation import remaining_time_s
 from ..messages import (
     BATTERY_STATE,
     FLOAT64_ARRAY,
@@ -102,8 +103,11 @@ def write_output_bag(
         e = r.estimates
         prefix = f"/{e.estimator}" if len(results) > 1 else ""
         rows = [k for k in range(n) if math.isfinite(e.soc[k])]
+        full = r.runtime.full if r.runtime is not None else np.zeros(n, dtype=bool)
 
-        def soc_msgs(e: EstimateSeries = e, rows: list[int] = rows) -> Iterator[Any]:
+        def soc_msgs(
+            e: EstimateSeries = e, rows: list[int] = rows, full: np.ndarray = full
+        ) -> Iterator[Any]:
             for k in rows:
                 fields = estimate_state(
                     battery,
@@ -112,6 +116,7 @@ def write_output_bag(
                     float(series.voltage_v[k]),
                     float(series.current_a[k]),
                     float(series.temperature_c[k]),
+                    full=bool(full[k]),
                 )
                 yield stamps[k], battery_state_message(fields)
 
@@ -135,14 +140,78 @@ def write_output_bag(
     write_bag(path, topics)
 
 
+#: The runtime predictions ``--output`` writes after the estimate's columns.
+CSV_RUNTIME_COLUMNS = (
+    "time_to_empty_s",
+    "time_to_empty_std_s",
+    "time_to_full_s",
+    "max_discharge_current_10s_a",
+)
+CSV_COLUMNS = (
+    "time_s",
+    "soc",
+    "soc_std",
+    "voltage_v",
+    "voltage_pred_v",
+    "current_a",
+    *CSV_RUNTIME_COLUMNS,
+)
+
+
+def _plot_time_to_empty(ax: Any, series: BatterySeries, results: list[ReplayResult]) -> None:
+    """Predicted time to empty (h) with +-2 sigma per estimator, and the actual one."""
+    t_h = series.t_s / 3600.0
+    target = next(r.runtime.soc_empty for r in results if r.runtime is not None)
+    top = 0.0
+    if series.soc_ref is not None:
+        actual = remaining_time_s(series.t_s, series.soc_ref, target)
+        if np.any(np.isfinite(actual)):
+            ax.plot(t_h, actual / 3600.0, "k", lw=1.5, label="actual (reference)")
+            top = float(np.nanmax(actual)) / 3600.0
+        else:
+            ax.text(
+                0.01,
+                0.95,
+                f"the reference never reaches SoC {target:g}: no actual time",
+                transform=ax.transAxes,
+                va="top",
+                fontsize=8,
+            )
+    for r in results:
+        if r.runtime is None:
+            continue
+        tte = r.runtime["time_to_empty_s"] / 3600.0
+        std = r.runtime["time_to_empty_std_s"] / 3600.0
+        finite = np.isfinite(tte)
+        shown = np.where(finite, tte, np.nan)
+        (line,) = ax.plot(t_h, shown, lw=1, label=f"{r.estimates.estimator} predicted")
+        ax.fill_between(t_h, shown - 2 * std, shown + 2 * std, color=line.get_color(), alpha=0.15)
+        if np.any(finite):
+            top = max(top, float(np.nanpercentile(shown, 95)))
+    ax.set_ylim(0.0, 1.3 * top if top > 0.0 else 1.0)
+    ax.set_ylabel(f"time to SoC {target:g} (h)")
+    ax.legend(fontsize=8, ncol=3)
+
+
 def write_csv(path: Path, result: ReplayResult) -> None:
-    """``time_s, soc, soc_std, voltage_v, voltage_pred_v, current_a`` per sample."""
+    """:data:`CSV_COLUMNS` per sample: the estimate, then the runtime monitor's latest
+    prediction (NaN before the first, or when the replay made none; ``inf``: never)."""
     e = result.estimates
+    n = len(e.t_s)
+    rt = result.runtime
+    runtime = [rt[c] if rt is not None else np.full(n, math.nan) for c in CSV_RUNTIME_COLUMNS]
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["time_s", "soc", "soc_std", "voltage_v", "voltage_pred_v", "current_a"])
+        w.writerow(CSV_COLUMNS)
         for row in zip(
-            e.t_s, e.soc, e.soc_std, e.voltage_v, e.voltage_pred_v, e.current_a, strict=True
+            e.t_s,
+            e.soc,
+            e.soc_std,
+            e.voltage_v,
+            e.voltage_pred_v,
+            e.current_a,
+            *runtime,
+            strict=True,
         ):
             w.writerow([f"{v:.6g}" if k else f"{v:.3f}" for k, v in enumerate(row)])
 
@@ -159,16 +228,27 @@ def error_axis_limit_pct(errors_pct: list[np.ndarray]) -> float:
     return min(max(limit, ERROR_AXIS_MIN_PCT), ERROR_AXIS_MAX_PCT)
 
 
+def _has_predictions(results: list[ReplayResult]) -> bool:
+    return any(
+        r.runtime is not None and np.any(np.isfinite(r.runtime["time_to_empty_s"])) for r in results
+    )
+
+
 def plot_results(path: Path, series: BatterySeries, results: list[ReplayResult]) -> None:
     """SoC vs reference with +-2 sigma, the error, and measured vs predicted voltage
     (seed 000 Figs. 11-13), one colour per estimator. The error axis is clipped
-    (:func:`error_axis_limit_pct`); a clipped estimator is named in the panel with its peak."""
+    (:func:`error_axis_limit_pct`); a clipped estimator is named in the panel with its peak.
+    With the runtime monitor's predictions, a fourth panel: the predicted time to empty with
+    +-2 sigma against the actual one (the time until the reference SoC reaches the target,
+    where it does)."""
     import matplotlib  # noqa: PLC0415 (only for plots)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    fig, axes = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
+    runtime_panel = _has_predictions(results)
+    rows = 4 if runtime_panel else 3
+    fig, axes = plt.subplots(rows, 1, figsize=(10, 2.6 * rows + 2.2), sharex=True)
     t_h = series.t_s / 3600.0
     if series.soc_ref is not None:
         axes[0].plot(t_h, 100 * series.soc_ref, "k", lw=1.5, label="reference")
@@ -221,8 +301,10 @@ def plot_results(path: Path, series: BatterySeries, results: list[ReplayResult])
             bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"},
         )
     axes[2].set_ylabel("voltage (V)")
-    axes[2].set_xlabel("time (h)")
     axes[2].legend(fontsize=8, ncol=3)
+    if runtime_panel:
+        _plot_time_to_empty(axes[3], series, results)
+    axes[-1].set_xlabel("time (h)")
     fig.suptitle(results[0].input_name)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

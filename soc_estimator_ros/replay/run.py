@@ -6,7 +6,11 @@ order, stale, not present), and the start is the node's (``initial_soc``: the OC
 accepted sample by default, a given SoC, or the recording's reference with ``"ref"``).
 
 An :class:`EstimateSeries` keeps one row per input sample: a rejected sample repeats the last
-estimate (status = the rejection reason); rows before the first accepted sample are NaN.
+estimate (status = the rejection reason); rows before the first accepted sample are NaN. A
+:class:`RuntimeSeries` keeps the tracker's runtime monitor per row: FULL, and with
+``runtime=True`` its latest prediction, made as the node makes them (every second of sample
+time, its default settings); without, no prediction is made (NaN: they are only needed for
+the CSV and the plots).
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ from ..messages import chemistry_of_technology
 from ..params import BatteryParams, load_battery_params
 from ..recordings import read_recording
 from ..resources import BUNDLED_FILES, bundled_file
-from ..series import BatterySeries, EstimateSeries
+from ..runtime import RuntimeConfig
+from ..series import RUNTIME_COLUMNS, BatterySeries, EstimateSeries, RuntimeSeries
 from ..tracking import GateConfig, Sample, Tracker, TrackerConfig, Verdict
 from ..units import CurrentSign
 
@@ -50,6 +55,7 @@ class ReplayResult:
     accuracy: Accuracy | None
     start: str
     counts: dict[str, int]
+    runtime: RuntimeSeries | None = None
 
     @property
     def finite(self) -> bool:
@@ -72,6 +78,7 @@ class ReplayJob:
     live_rate: float | None = None
     live: bool = False
     extras: dict[str, str] = field(default_factory=dict)
+    runtime: bool = False
 
     @property
     def name(self) -> str:
@@ -91,10 +98,14 @@ def battery_file_for(series: BatterySeries) -> Path:
     return bundled_file(chemistry)
 
 
-def tracker_config(series: BatterySeries, estimator: str, initial_soc: str) -> TrackerConfig:
-    """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text)."""
+def tracker_config(
+    series: BatterySeries, estimator: str, initial_soc: str, runtime: bool = False
+) -> TrackerConfig:
+    """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text);
+    ``runtime``: predictions every second as the node makes them (else none)."""
+    rt = RuntimeConfig() if runtime else RuntimeConfig(predict_period_s=0.0)
     if initial_soc == "ocv":
-        return TrackerConfig(estimator=estimator, initial_soc="ocv")
+        return TrackerConfig(estimator=estimator, initial_soc="ocv", runtime=rt)
     if initial_soc == "ref":
         if series.soc_ref is None or not math.isfinite(series.soc_ref[0]):
             raise ReplayError("--initial-soc ref: the recording has no reference SoC at its start")
@@ -108,14 +119,28 @@ def tracker_config(series: BatterySeries, estimator: str, initial_soc: str) -> T
             ) from None
         if not 0.0 <= value <= 1.0:
             raise ReplayError(f"--initial-soc {initial_soc}: expected a fraction in [0, 1]")
-    return TrackerConfig(estimator=estimator, initial_soc=value, initial_soc_std=INITIAL_SOC_STD)
+    return TrackerConfig(
+        estimator=estimator, initial_soc=value, initial_soc_std=INITIAL_SOC_STD, runtime=rt
+    )
 
 
 def track_series(
     series: BatterySeries, tracker: Tracker, progress: Progress | None = None
 ) -> tuple[EstimateSeries, str]:
     """Every sample of ``series`` through ``tracker``; the estimates and the start used."""
+    estimates, start, _ = track_series_runtime(series, tracker, progress)
+    return estimates, start
+
+
+def track_series_runtime(
+    series: BatterySeries, tracker: Tracker, progress: Progress | None = None
+) -> tuple[EstimateSeries, str, RuntimeSeries]:
+    """:func:`track_series` and the runtime monitor over the run (its predictions NaN when the
+    tracker makes none; FULL either way)."""
     n = len(series)
+    rt = {k: np.full(n, math.nan) for k in RUNTIME_COLUMNS}
+    full = np.zeros(n, dtype=bool)
+    report: dict[str, float] | None = None
     soc = np.full(n, math.nan)
     std = np.full(n, math.nan)
     v_pred = np.full(n, math.nan)
@@ -147,6 +172,12 @@ def track_series(
         if last is not None:
             soc[k], std[k] = last.soc, last.soc_std
             x[k], p[k] = last.x, last.p
+        if result.runtime is not None:
+            report = result.runtime.fields()
+        if report is not None:
+            for name in RUNTIME_COLUMNS:
+                rt[name][k] = report[name]
+        full[k] = tracker.runtime.full
         if progress is not None and (k + 1) % every == 0:
             progress(k + 1, n)
     estimates = EstimateSeries(
@@ -164,7 +195,8 @@ def track_series(
         p=p,
         state_names=tracker.estimator.state_names,
     )
-    return estimates, start or "no sample accepted"
+    runtime = RuntimeSeries(rt, full, tracker.battery.limits.soc_min)
+    return estimates, start or "no sample accepted", runtime
 
 
 def replay_estimator(
@@ -174,18 +206,20 @@ def replay_estimator(
     initial_soc: str,
     name: str,
     progress: Progress | None = None,
+    runtime: bool = False,
 ) -> ReplayResult:
-    """One estimator over a recording, offline, behind a tracker."""
+    """One estimator over a recording, offline, behind a tracker (with the runtime
+    monitor's predictions when ``runtime``)."""
     tracker = Tracker(
         battery,
         GateConfig.from_limits(battery.limits),
-        tracker_config(series, estimator, initial_soc),
+        tracker_config(series, estimator, initial_soc, runtime),
     )
-    estimates, start = track_series(series, tracker, progress)
+    estimates, start, rt = track_series_runtime(series, tracker, progress)
     counts = {v.value: c for v, c in tracker.gate.counts.items() if c and v is not Verdict.ACCEPTED}
     if tracker.gate.temperature_ignored:
         counts["temperature_ignored"] = tracker.gate.temperature_ignored
-    return ReplayResult(name, estimates, score(series, estimates), start, counts)
+    return ReplayResult(name, estimates, score(series, estimates), start, counts, rt)
 
 
 def score(series: BatterySeries, estimates: EstimateSeries) -> Accuracy | None:
@@ -215,13 +249,13 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
             from .live import replay_live  # noqa: PLC0415 (rclpy only for --live)
 
             config = tracker_config(series, estimator, job.initial_soc)
-            estimates, start = replay_live(
+            estimates, start, rt = replay_live(
                 series, Path(battery_file).resolve(), config, job.live_rate, progress
             )
-            result = ReplayResult(job.name, estimates, score(series, estimates), start, {})
+            result = ReplayResult(job.name, estimates, score(series, estimates), start, {}, rt)
         else:
             result = replay_estimator(
-                series, battery, estimator, job.initial_soc, job.name, progress
+                series, battery, estimator, job.initial_soc, job.name, progress, job.runtime
             )
         if not result.finite:
             raise ReplayError(

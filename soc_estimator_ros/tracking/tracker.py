@@ -27,6 +27,11 @@ What it owns, besides the estimator and the gate:
   variance, time base and current), recover from an estimator exception.
 * **Counts**: the gate's verdicts, ignored temperatures, and samples missing from the stamps
   (gaps of whole sample periods, estimated from the median period), so lost input shows.
+* **Runtime** (``runtime/``): every accepted sample and its estimate go on to a
+  :class:`~soc_estimator_ros.runtime.RuntimeMonitor` (low-battery level, charge state, load
+  window, and a time to empty, time to full and state of power every ``predict_period_s``).
+  A CC-CV charge detected at its end recalibrates the SoC to 1 through :meth:`reset_soc`.
+* **Stale input**: :meth:`carried_forward` is the last SoC with its std grown over the silence.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
@@ -42,7 +47,8 @@ import numpy as np
 from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
 from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
 from ..params import BatteryParams
-from ..units import NS_PER_S
+from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
+from ..units import NS_PER_S, SECONDS_PER_HOUR
 from .gate import GateConfig, InputGate, Verdict
 from .persistence import ResumeDecision
 
@@ -92,11 +98,13 @@ class Sample:
 
 @dataclass(frozen=True)
 class StepResult:
-    """What became of one sample: the verdict, the estimate if accepted, events to log."""
+    """What became of one sample: the verdict, the estimate if accepted, events to log, and
+    the runtime monitor's report when this sample made one."""
 
     verdict: Verdict
     estimate: Estimate | None = None
     events: tuple[Event, ...] = ()
+    runtime: RuntimeReport | None = None
 
     @property
     def accepted(self) -> bool:
@@ -118,6 +126,7 @@ class TrackerConfig:
         initial_soc_std: std of a numeric ``initial_soc``.
         ocv_voltage_std_v: voltage uncertainty when a voltage is read as an OCV (V).
         rebase_after_s: steady time a backward jump must persist before re-anchoring (s).
+        runtime: the runtime monitor's settings (``runtime/monitor.py``).
     """
 
     estimator: str = DEFAULT_ESTIMATOR
@@ -125,6 +134,7 @@ class TrackerConfig:
     initial_soc_std: float = 0.1
     ocv_voltage_std_v: float = 0.05
     rebase_after_s: float = 2.0
+    runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
 
     def __post_init__(self) -> None:
         init = self.initial_soc
@@ -177,6 +187,7 @@ class Tracker:
         self._jump_run: list[int] = []
         self._intervals: list[float] = []
         self._period_s: float | None = None
+        self.runtime = RuntimeMonitor(battery, self.config.runtime)
 
     # -- the estimation step ------------------------------------------------------------------
     def process(
@@ -230,11 +241,36 @@ class Tracker:
         if t_prev is not None:
             self._count_missing(t_s - t_prev)
         self.samples_used += 1
+        est, notices, report = self.runtime.update(
+            t_s,
+            s.stamp_ns,
+            s.current_a,
+            s.voltage_v,
+            temperature_c,
+            est,
+            self.estimator,
+            self._recalibrate,
+        )
+        events += [Event(Level(n.severity), n.message) for n in notices]
         self.last_estimate = est
         self.last_sample = Sample(s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present)
         self.last_accept_steady_s = self._steady()
         self.revision += 1
-        return StepResult(verdict, est, tuple(events))
+        return StepResult(verdict, est, tuple(events), report)
+
+    def _recalibrate(self, soc: float, soc_std: float) -> Estimate:
+        """Reset the SoC (the runtime monitor's FULL) and return the estimate it leaves."""
+        self.reset_soc(soc, soc_std)
+        last = self.estimator.last
+        assert last is not None
+        e = self.estimator
+        return replace(
+            last,
+            soc=e.soc,
+            soc_var=e.soc_var,
+            x=np.array(e.x, dtype=float),
+            p=np.array(e.p, dtype=float),
+        )
 
     def _rejection_event(self, verdict: Verdict, s: Sample) -> Event:
         return Event(
@@ -400,3 +436,19 @@ class Tracker:
     def soc_var(self) -> float:
         """The SoC variance now, at most ``MAX_SOC_VAR`` (what a state file may hold)."""
         return min(self.estimator.soc_var, MAX_SOC_VAR)
+
+    def carried_forward(self, now_steady_s: float) -> tuple[float, float, float]:
+        """The last SoC carried over a silence of the input: (SoC, std, silent seconds).
+
+        The SoC stays; its variance grows as over an estimator's gap (``estimators/base.py``):
+        ``(gap_current_std_a * silent_s / (3600 Q))^2`` is added, up to ``MAX_SOC_VAR``, so
+        the std keeps growing and is never NaN. (SoC, std) of the estimator, silent 0, before
+        any accepted sample.
+        """
+        soc, var = self.soc, self.soc_var
+        if self.last_accept_steady_s is None:
+            return soc, math.sqrt(var), 0.0
+        silent = max(now_steady_s - self.last_accept_steady_s, 0.0)
+        gap_std = self.estimator.time_policy.gap_current_std_a
+        grown = gap_std * silent / (SECONDS_PER_HOUR * self.battery.capacity_ah)
+        return soc, math.sqrt(min(var + grown * grown, MAX_SOC_VAR)), silent

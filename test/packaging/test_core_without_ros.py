@@ -45,6 +45,7 @@ CORE_PARTS = [
     "estimators",
     "identification",
     "tracking",
+    "runtime",
     "recordings",
     "resources",
 ]

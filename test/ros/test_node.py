@@ -40,7 +40,12 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
-from soc_estimator_ros.messages import decode_estimate, estimate_labels  # noqa: E402
+from soc_estimator_ros.messages import (  # noqa: E402
+    RUNTIME_FIELDS,
+    decode_estimate,
+    decode_runtime,
+    estimate_labels,
+)
 from soc_estimator_ros.node.ros_node import SocEstimatorNode, main  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
 from soc_estimator_ros.recordings import BatterySeries, read_battery_bag  # noqa: E402
@@ -50,6 +55,7 @@ from soc_estimator_ros.replay.live import (  # noqa: E402
     start_node,
     state_message,
 )
+from soc_estimator_ros.tracking import GateConfig, Sample, Tracker, TrackerConfig  # noqa: E402
 from soc_estimator_ros.tracking.gate import Verdict  # noqa: E402
 from soc_estimator_ros.tracking.persistence import SavedState, load_state, save_state  # noqa: E402
 from soc_estimator_ros.units import ros_current_from_core  # noqa: E402
@@ -432,6 +438,91 @@ def test_use_sim_time_and_publish_rate(make_harness):
     assert h.spin_until(lambda: len(h.soc) >= 2, 2.0)
 
 
+# -- runtime: battery/runtime, levels, stale input ---------------------------------------------
+def test_runtime_topic_matches_the_offline_tracker_and_follows_mission_power(
+    make_harness, sla_run, battery
+):
+    """battery/runtime: once a second of sample time, labelled, the offline tracker's reports
+    to the bit (the same monitor behind the same tracker); its keys in diagnostics too;
+    mission_power_w replaces the load window at run time."""
+    n = 600
+    soc0 = float(sla_run.soc_ref[0])
+    h = make_harness(estimator="hybrid", initial_soc=repr(soc0), initial_soc_std=0.1)
+    h.send(series_msgs(sla_run, n))
+    assert h.spin_until(lambda: len(h.runtime) >= 60, 5.0)
+    h.spin_for(0.1)
+    assert h.runtime[0].layout.dim[0].label == "fields:" + ",".join(RUNTIME_FIELDS)
+    live = [decode_runtime(m) for m in h.runtime]
+    offline = Tracker(
+        battery,
+        GateConfig.from_limits(battery.limits),
+        TrackerConfig(estimator="hybrid", initial_soc=soc0, initial_soc_std=0.1),
+    )
+    reports = []
+    for k in range(n):
+        r = offline.process(
+            Sample(int(sla_run.stamp_ns[k]), float(sla_run.current_a[k]),
+                   float(sla_run.voltage_v[k]), float(sla_run.temperature_c[k]))
+        )  # fmt: skip
+        if r.runtime is not None:
+            reports.append(r.runtime.fields())
+    assert len(live) == len(reports) == 60  # 60 s at 10 Hz: one a second
+    for got, want in zip(live, reports, strict=True):
+        for key in RUNTIME_FIELDS:
+            assert got[key] == pytest.approx(want[key], rel=1e-12, abs=1e-12, nan_ok=True), key
+    values = {kv.key: kv.value for kv in h.node.diagnostic_status().values}
+    for key in RUNTIME_FIELDS[1:]:
+        assert key in values, key
+    assert float(values["time_to_empty_s"]) == pytest.approx(live[-1]["time_to_empty_s"], 1e-5)
+
+    assert h.set_params(mission_power_w=150.0)[0].successful
+    h.send(series_msgs(sla_run, n + 20)[n:])
+    assert decode_runtime(h.runtime[-1])["load_power_w"] == 150.0
+    assert h.set_params(low_soc_warn=0.2, low_soc_error=0.3)[0].successful is False
+
+
+def test_stale_input_keeps_battery_soc_coming_with_status_unknown(make_harness):
+    """The bridge goes silent: battery/soc keeps coming at 1 Hz (publish_rate_hz 0) with
+    status UNKNOWN and the last SoC (never NaN), the SoC's std grows in diagnostics, which say
+    ERROR; the next sample ends it."""
+    h = make_harness(estimator="coulomb", initial_soc="0.6", initial_soc_std=0.0001,
+                     stale_timeout_s=0.5)  # fmt: skip
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(10)])
+    last = h.soc[-1].percentage
+    first_std = float({kv.key: kv.value for kv in h.node.diagnostic_status().values}["soc_std"])
+    assert h.spin_until(lambda: len(h.soc_stale) >= 3, 8.0)
+    for m in h.soc_stale:
+        assert m.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_UNKNOWN
+        assert m.percentage == last and math.isfinite(m.percentage)
+        assert math.isnan(m.voltage) and math.isnan(m.current)
+        assert m.serial_number == "SIM-1"
+    stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in h.soc_stale]
+    assert all(0.5 < b - a < 1.5 for a, b in zip(stamps[:-1], stamps[1:], strict=True))  # 1 Hz
+    status = h.node.diagnostic_status()
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == b"\x02" and "stale input" in status.message
+    assert values["stale"] == "true" and float(values["soc_std"]) > first_std
+    assert float(values["soc"]) == pytest.approx(last, abs=1e-6)
+    # The bridge is back: estimates again, not stale.
+    stale_count = len(h.soc_stale)
+    h.send([state_msg(T0 + 2 * S, 12.3, 1.0)])  # within time_jump_s of the silence
+    assert h.soc[-1].power_supply_status == BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+    assert "stale input" not in h.node.diagnostic_status().message
+    h.spin_for(1.2)
+    assert len(h.soc_stale) <= stale_count + 1  # at most one already on its way
+
+
+def test_stale_output_follows_publish_rate(make_harness):
+    h = make_harness(estimator="coulomb", initial_soc="0.6", stale_timeout_s=0.3,
+                     publish_rate_hz=5.0)  # fmt: skip
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(5)], expect_outputs=False)
+    assert h.spin_until(lambda: len(h.soc_stale) >= 1, 5.0)
+    start, count = time.monotonic(), len(h.soc_stale)
+    h.spin_for(1.0)
+    assert len(h.soc_stale) - count >= 3  # 5 Hz, give or take a scheduling hiccup
+    assert time.monotonic() - start < 2.0
+
+
 # -- 6. 100 Hz for 60 s ----------------------------------------------------------------------
 def test_100hz_stream_loses_nothing(make_harness, battery):
     n = 6000
@@ -521,6 +612,7 @@ def test_bad_configuration_is_refused(ctx, tmp_path):
         ({"estimator": "nope"}, "estimator"),
         ({"input_reliability": "maybe"}, "input_reliability"),
         ({"current_topic": "battery/current"}, "together"),
+        ({"low_soc_warn": 0.1, "low_soc_error": 0.3}, "low_soc"),
     ]:
         overrides = [Parameter("state_file", value=str(tmp_path / "x.yaml"))]
         overrides += [Parameter(k, value=v) for k, v in params.items()]

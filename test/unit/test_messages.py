@@ -4,6 +4,7 @@ vector, as the node publishes them and soc_replay --output-bag writes them."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,12 +20,38 @@ SLA = load_battery_params(REPO_ROOT / "config" / "sla_12v5ah.yaml")
 
 @pytest.mark.parametrize(
     ("current_core_a", "status"),
-    [(2.0, m.STATUS_DISCHARGING), (-2.0, m.STATUS_CHARGING), (0.05, m.STATUS_NOT_CHARGING)],
+    [
+        (2.0, m.STATUS_DISCHARGING),
+        (-2.0, m.STATUS_CHARGING),
+        (0.05, m.STATUS_NOT_CHARGING),
+        (-0.3, m.STATUS_NOT_CHARGING),  # a charge below Nav2's 0.5 A docking threshold
+        (-0.6, m.STATUS_CHARGING),
+    ],
 )
 def test_status_from_the_current_with_a_dead_band(current_core_a, status) -> None:
     fields = m.estimate_state(SLA, 0.5, 0, 12.5, current_core_a, idle_current_a=0.1)
     assert fields.power_supply_status == status
     assert fields.current == -current_core_a  # ROS sign: negative while discharging
+
+
+def test_full_and_stale_states() -> None:
+    full = m.estimate_state(SLA, 1.0, 0, 14.35, -0.1, full=True)
+    assert full.power_supply_status == m.STATUS_FULL == 4
+    stale = m.estimate_state(SLA, 0.37, 0, 12.0, 3.0, stale=True)
+    assert stale.power_supply_status == m.STATUS_UNKNOWN
+    assert stale.power_supply_health == m.HEALTH_UNKNOWN
+    assert stale.percentage == pytest.approx(0.37)  # carried, never NaN (Nav2's IsBatteryLow)
+    assert math.isnan(stale.voltage) and math.isnan(stale.current)
+    assert math.isnan(stale.temperature)
+
+
+def test_runtime_vector_is_labelled() -> None:
+    values = {k: float(i) for i, k in enumerate(m.RUNTIME_FIELDS)}
+    data = m.runtime_vector(values)
+    label = m.runtime_layout_label()
+    assert label.startswith("fields:stamp_s,time_to_empty_s,time_to_empty_std_s,time_to_full_s")
+    msg = SimpleNamespace(layout=SimpleNamespace(dim=[SimpleNamespace(label=label)]), data=data)
+    assert m.decode_runtime(msg) == values
 
 
 def test_health_and_capacity_fields() -> None:

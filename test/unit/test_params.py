@@ -195,3 +195,33 @@ def test_unreadable_and_malformed_yaml(tmp_path) -> None:
     bad.write_text("- just\n- a list\n")
     with pytest.raises(ParamFileError, match="a mapping"):
         load_battery_params(bad)
+
+
+def test_levels_and_charge_sections_are_optional_validated_and_round_trip() -> None:
+    from soc_estimator_ros.params import ChargeSettings, LevelSettings
+
+    tree = base()
+    params = parse_battery_params(tree)
+    assert params.levels == LevelSettings() and params.charge == ChargeSettings()
+    for section, change, named in (
+        ("levels", {"warn": 0.3}, "levels.warn"),  # unknown key (a typo of warn_soc)
+        ("levels", {"warn_soc": 1.5}, "levels.warn_soc"),
+        ("levels", {"warn_soc": 0.2, "critical_soc": 0.3}, "levels.critical_soc"),
+        ("levels", {"debounce_s": -1}, "levels.debounce_s"),
+        ("charge", {"voltage_v": 20.0}, "charge.voltage_v"),  # above limits.voltage_max_v
+        ("charge", {"voltage_tolerance_v": 0.0}, "charge.voltage_tolerance_v"),
+        ("charge", {"taper_c_rate": 0.0}, "charge.taper_c_rate"),
+        ("charge", "14.4", "charge"),
+    ):
+        bad = copy.deepcopy(tree)
+        bad[section] = change
+        with pytest.raises(ParamFileError, match=named):
+            parse_battery_params(bad)
+    tree["levels"] = {"warn_soc": 0.35, "critical_soc": 0.25, "debounce_s": 20.0}
+    tree["charge"] = {"voltage_v": 14.2, "hold_s": 30.0}
+    params = parse_battery_params(tree)
+    assert params.levels == LevelSettings(warn_soc=0.35, critical_soc=0.25, debounce_s=20.0)
+    assert params.charge == ChargeSettings(voltage_v=14.2, hold_s=30.0)
+    dumped = battery_params_to_dict(params)
+    assert dumped["levels"] == tree["levels"] and dumped["charge"] == tree["charge"]
+    assert parse_battery_params(dumped) == params

@@ -147,7 +147,7 @@ def test_live_replay_equals_the_offline_replay_sample_for_sample(tmp_path, capsy
 
     soc0 = float(excerpt().soc_ref[0])
     config = TrackerConfig(estimator="hybrid", initial_soc=soc0, initial_soc_std=0.1)
-    live, _ = replay_live(excerpt(), _sla(), config)
+    live, _, _ = replay_live(excerpt(), _sla(), config)
     offline = run_estimator(
         make_estimator("hybrid", load_battery_params(_sla()), float(excerpt().soc_ref[0]), 0.1),
         excerpt(),
@@ -203,3 +203,46 @@ def test_replay_starts_as_the_node_does_and_says_so(tmp_path, capsys):
     assert code == 0 and f"initial SoC {float(excerpt().soc_ref[0]):.4f} (given)" in out
     code, _, err = run([str(src), "--params", str(_sla()), "--initial-soc", "1.5"], capsys)
     assert code == 2 and "fraction" in err
+
+
+def test_csv_columns_contract(tmp_path, capsys):
+    """--output's columns, in order, as docs/replay.md lists them: the estimate's, then the
+    runtime monitor's time to empty (and its std), time to full and 10-s discharge current,
+    the latest prediction (one a second of sample time, as the node publishes them)."""
+    from soc_estimator_ros.replay.outputs import CSV_COLUMNS
+
+    assert CSV_COLUMNS == (
+        "time_s",
+        "soc",
+        "soc_std",
+        "voltage_v",
+        "voltage_pred_v",
+        "current_a",
+        "time_to_empty_s",
+        "time_to_empty_std_s",
+        "time_to_full_s",
+        "max_discharge_current_10s_a",
+    )
+    doc = (REPO_ROOT / "docs" / "replay.md").read_text()
+    assert all(f"`{c}`" in doc for c in CSV_COLUMNS)
+    src = write_excerpt(tmp_path / "run.csv")
+    out = tmp_path / "est.csv"
+    code, _, _ = run([str(src), "--params", str(_sla()), "--output", str(out)], capsys)
+    assert code == 0
+    with out.open() as fh:
+        reader = csv.DictReader(fh)
+        assert tuple(reader.fieldnames or ()) == CSV_COLUMNS
+        rows = list(reader)
+    assert len(rows) == N
+    t = np.array([float(r["time_s"]) for r in rows])
+    tte = np.array([float(r["time_to_empty_s"]) for r in rows])
+    std = np.array([float(r["time_to_empty_std_s"]) for r in rows])
+    ttf = np.array([float(r["time_to_full_s"]) for r in rows])
+    sop = np.array([float(r["max_discharge_current_10s_a"]) for r in rows])
+    assert np.all(tte > 0) and np.all(std > 0)  # from the first sample (SoC 1 -> 0.4)
+    assert np.all(np.isnan(ttf))  # no charge in a discharge mission
+    limit = load_battery_params(_sla()).limits.current_max_discharge_a
+    assert np.all((sop > 0) & (sop <= limit))
+    changes = t[1:][np.diff(tte) != 0]
+    assert np.all(np.diff(changes) >= 0.99)  # at most one prediction a second
+    assert 0.9 * (t[-1] - t[0]) <= len(changes) + 1  # and about one every second
