@@ -148,7 +148,12 @@ def main() -> int:
     ap.add_argument("--split", default="", help="only cases of this split")
     ap.add_argument("--estimators", default="hybrid")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--activation-energy", type=float, help="Ea (J/mol) for --real's file")
+    ap.add_argument(
+        "--activation-energy",
+        type=float,
+        default=30_000.0,
+        help="Ea (J/mol) set in --real's file (default 30 kJ/mol, the Li-ion prior)",
+    )
     ap.add_argument("--extrapolation-scale-c", type=float, help="the hybrid's, for --real")
     args = ap.parse_args()
     cases: list[Case] = []

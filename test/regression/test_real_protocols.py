@@ -277,7 +277,12 @@ def test_real_data_benchmark_skips_clearly_without_the_data(tmp_path: Path) -> N
     import sys
 
     out = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "real_data.py"), "--data", str(tmp_path)],
+        [
+            sys.executable,
+            str(ROOT / "benchmarks" / "studies" / "real_data.py"),
+            "--data",
+            str(tmp_path),
+        ],
         capture_output=True,
         text=True,
         timeout=120,

@@ -195,6 +195,9 @@ def test_resistances_follow_arrhenius_outside_the_identified_temperatures() -> N
     )
 
     battery = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")  # 5 and 25 degC
+    assert battery.thevenin_model().resistance_factor(-30.0) == 1.0  # no Ea: edge held
+    ea_file = TemperatureExtrapolation(activation_energy_j_per_mol=30_000.0)
+    battery = replace(battery, thevenin=replace(battery.thevenin, extrapolation=ea_file))
     model = battery.thevenin_model()
     assert model.trusted_c == (2.0, 28.0)
     assert model.resistance_factor(3.0) == 1.0 and model.resistance_factor(None) == 1.0
@@ -209,7 +212,8 @@ def test_resistances_follow_arrhenius_outside_the_identified_temperatures() -> N
     drop_edge = model.series_drop_v(0.5, 1e-9, 2.0)  # ~ohmic at a tiny current
     assert model.series_drop_v(0.5, 1e-9, t) == pytest.approx(drop_edge * expected, rel=1e-6)
     # The file's key: absent means the default, and only a non-default value is written.
-    assert "extrapolation" not in battery_params_to_dict(battery)["thevenin"]
+    bundled = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+    assert "extrapolation" not in battery_params_to_dict(bundled)["thevenin"]
     own = replace(
         battery,
         thevenin=replace(battery.thevenin, extrapolation=TemperatureExtrapolation(20_000.0, 1.0)),
