@@ -229,6 +229,8 @@ class TheveninModel:
         #: The temperatures (degC) inside which the tables are used as identified.
         self.trusted_c = (temps[0] - margin, temps[-1] + margin)
         self._factors: dict[float, float] = {}
+        # Without Ea the factor is always 1: the hot paths skip the call (no per-step cost).
+        self._arrhenius = params.extrapolation.activation_energy_j_per_mol != 0.0
 
     # -- the identified range ----------------------------------------------------------------
     def extrapolation_c(self, temperature_c: float | None) -> float:
@@ -264,7 +266,7 @@ class TheveninModel:
         self, soc: float, current_a: float, temperature_c: float | None = None
     ) -> float:
         """The instantaneous drop ``I R_0 + eta(I)`` in volts (module docstring)."""
-        f = self.resistance_factor(temperature_c)
+        f = self.resistance_factor(temperature_c) if self._arrhenius else 1.0
         drop = current_a * self.params.r0_ohm.at(soc, temperature_c)
         if f != 1.0:
             drop *= f
@@ -280,7 +282,7 @@ class TheveninModel:
         self, soc: np.ndarray, current_a: float, temperature_c: float | None = None
     ) -> np.ndarray:
         """:meth:`series_drop_v` for an array of SoC at one current."""
-        f = self.resistance_factor(temperature_c)
+        f = self.resistance_factor(temperature_c) if self._arrhenius else 1.0
         drop = current_a * self.params.r0_ohm.at_array(soc, temperature_c)
         if f != 1.0:
             drop = drop * f
@@ -299,8 +301,11 @@ class TheveninModel:
         b = self.params.branches[i]
         r = b.r_ohm.at(soc, temperature_c)
         tau = r * b.c_f.at(soc, temperature_c)  # kept outside the range: C scales by 1/f
-        f = self.resistance_factor(temperature_c)
-        return (r * f if f != 1.0 else r), tau
+        if self._arrhenius:
+            f = self.resistance_factor(temperature_c)
+            if f != 1.0:
+                r = r * f
+        return r, tau
 
     def surface_rest(self) -> tuple[float, ...]:
         """The lag's modes of a pack at rest (all 0; none without a :class:`SurfaceLag`)."""
@@ -350,9 +355,10 @@ class TheveninModel:
             rc = np.array([t.at_array(soc, temperature_c) for t in self._rc_tables])
             r, c = rc[: self.n_rc], rc[self.n_rc :]
             a = np.exp(-dt_s / (r * c))  # tau kept outside the range: C scales by 1/f
-            f = self.resistance_factor(temperature_c)
-            if f != 1.0:
-                r = r * f
+            if self._arrhenius:
+                f = self.resistance_factor(temperature_c)
+                if f != 1.0:
+                    r = r * f
             if self._saturating:
                 drive = np.empty_like(r)  # (n_rc, m): a linear branch's row is the current
                 for i, b in enumerate(self.params.branches):
