@@ -89,12 +89,8 @@ def pooled_rms(residuals: Sequence[tuple[np.ndarray, np.ndarray]]) -> ModelError
     return ModelError(rms_v=math.sqrt(square / seconds), seconds=seconds)
 
 
-def with_bias_std(battery: BatteryParams, error: ModelError | None) -> BatteryParams:
-    """``battery`` with ``filters.hybrid.bias_std_v`` set to ``error``'s RMS; without the
-    entry (the hybrid's code default) when ``error`` is None."""
+def with_bias_std(battery: BatteryParams, error: ModelError) -> BatteryParams:
+    """``battery`` with ``filters.hybrid.bias_std_v`` set to ``error``'s RMS."""
     filters = {name: dict(block) for name, block in battery.filters.items()}
-    if error is not None:
-        filters.setdefault("hybrid", {})["bias_std_v"] = error.rms_v
-    elif "hybrid" in filters:
-        filters["hybrid"].pop("bias_std_v", None)
+    filters.setdefault("hybrid", {})["bias_std_v"] = error.rms_v
     return replace(battery, filters=filters)
