@@ -52,6 +52,20 @@ papers report:
    ``1 + (d / extrapolation_scale_c)^2``, d the distance in degC, so the voltage weighs less
    and the SoC leans on the current integral (issue 24: a file identified at 25 degC pulled
    the SoC 7-14 points off on 0 degC drive cycles). Inside the range the factor is 1.
+7. **Do no harm: the charge-count guard** (``guard.py``). Items 1-6 make the model's errors
+   smaller; none can tell the filter that its model is wrong today. A coulomb count from the
+   same anchor runs beside the UKF with its own error budget (the current sensor's offset and
+   gain std, the capacity's spread: ``current_offset_std_a``, ``current_gain_std``,
+   ``capacity_std_frac``, datasheet and spread values, not fitted), and the published SoC is
+   the two-hypothesis mixture of the UKF and the count: where the UKF strays from the count
+   further than the count's own errors explain, its weight falls and the published SoC falls
+   back to the count, with a variance that carries the disagreement. The prior that the model
+   holds is ``model_prior`` inside the identified temperatures and
+   ``model_prior / (1 + (d / extrapolation_scale_c)^2)`` outside; ``model_prior: 1`` turns
+   the guard off (the UKF's own SoC and variance are published). A rest OCV reading inside
+   the identified temperatures, a reset and a CC-CV end re-anchor the count; so does the
+   UKF's own SoC while it is trusted (``follow_tau_s``, ``model_soc_std``: ``guard.py``).
+   ``x`` and ``p`` stay the UKF's; ``soc`` and ``soc_var`` are the published (guarded) ones.
 """
 
 from __future__ import annotations
@@ -60,6 +74,7 @@ import math
 
 import numpy as np
 
+from .guard import ChargeCount, CountErrorModel, Guarded, guard
 from .t2rc_ukf import T2rcUkf
 
 
@@ -90,8 +105,22 @@ class Hybrid(T2rcUkf):
         # Item 6: degC outside the identified temperatures at which the measurement std has
         # grown by sqrt(2); chosen on the tuning set (docs/accuracy.md, "Outside the envelope").
         "extrapolation_scale_c": 2.0,
+        # Item 7, the guard: the count's error budget, from the sensor and the pack's spread
+        # (bags/README.md "Sensors": a Hall sensor's offset within +-30 mA and gain within
+        # +-0.8 %, uniform: std 17 mA and 0.46 %; the corpus' capacity spread +-5 %: 2.9 %).
+        "current_offset_std_a": 0.02,
+        "current_gain_std": 0.005,
+        "capacity_std_frac": 0.03,
+        "model_prior": 0.9,  # probability that the model holds, inside the identified range
+        "follow_tau_s": 60.0,  # s: one independent reading of the trusted filter per this
+        # SoC: what a persistent model error costs in SoC and the UKF's P leaves out (it takes
+        # the model's error as white): the floor of the UKF's SoC variance in the guard, and of
+        # the count's when it follows the filter.
+        "model_soc_std": 0.01,
     }
     state_names = (*T2rcUkf.state_names, "bias_v")
+    count: ChargeCount  # the guard's charge count (item 7), made by _init_state
+    _rest_fused: bool  # this rest's OCV reading is in the count
 
     # -- the model-error state (item 5): the last entry of x ---------------------------------
     def _rested_state(self, soc: float) -> np.ndarray:
@@ -132,9 +161,78 @@ class Hybrid(T2rcUkf):
             self._q_bias_key, self._q_bias = key, q
         return self._q_bias
 
+    # -- the guard (item 7) ---------------------------------------------------------------
+    def guarded(self) -> Guarded:
+        """The published estimate: the UKF's SoC and the charge count, mixed (``guard.py``)."""
+        i = self.soc_index
+        prior = float(self.tuning["model_prior"])
+        if prior >= 1.0:  # the guard off: the UKF's own SoC and variance
+            return Guarded(float(self.x[i]), float(self.p[i, i]), 1.0)
+        d = self.model.extrapolation_c(self._temp_c)
+        if d != 0.0:
+            prior /= 1.0 + (d / self.tuning["extrapolation_scale_c"]) ** 2
+        u_var = max(float(self.p[i, i]), float(self.tuning["model_soc_std"]) ** 2)
+        return guard(float(self.x[i]), u_var, self.count.soc, self.count.var, prior)
+
+    @property
+    def soc(self) -> float:
+        return self.guarded().soc
+
+    @property
+    def soc_var(self) -> float:
+        return self.guarded().soc_var
+
+    def _inflate_soc_variance(self, var: float) -> None:
+        super()._inflate_soc_variance(var)
+        self.count.inflate(var)
+
+    def _fuse_rest_ocv(self, current_a: float, voltage_v: float, temp_c) -> None:
+        """A rest's OCV reading into the count, once per rest, inside the identified range.
+
+        The reading is the measured voltage less what the model adds to the OCV curve at the
+        present state (the branches' remaining relaxation, the temperature offset), inverted
+        through the OCV curve with ``ocv_std_v``."""
+        if self._rest_fused or self.model.extrapolation_c(temp_c) != 0.0:
+            return
+        self._rest_fused = True
+        x = self.kf.x[np.newaxis, :]
+        soc_u = float(self.kf.x[self.soc_index])
+        v_model = float(self._hx(x, current_a, temp_c)[0, 0])
+        ocv_v = voltage_v - (v_model - self.model.ocv.ocv(soc_u))
+        c = self.count.soc
+        innovation = ocv_v - self.model.ocv.ocv(c)
+        self.count.fuse(innovation, self.model.ocv.slope(c), float(self.tuning["ocv_std_v"]) ** 2)
+
+    def _follow_trusted_filter(self, dt_s: float, temp_c) -> None:
+        """The trusted filter's SoC into the count (``guard.py``): inside the identified
+        temperatures, the NIS average below its gate, one reading per ``follow_tau_s``; the
+        count never gets surer than ``model_soc_std`` from it (the model's error is not
+        white)."""
+        if dt_s <= 0.0 or self.inflating or self.model.extrapolation_c(temp_c) != 0.0:
+            return
+        t = self.tuning
+        i = self.soc_index
+        floor_var = float(t["model_soc_std"]) ** 2
+        u_var = max(float(self.kf.P[i, i]), floor_var)
+        tau_s = float(t["follow_tau_s"])
+        r = u_var * tau_s / min(dt_s, tau_s)  # a gap longer than tau is still one reading
+        self.count.fuse(float(self.kf.x[i]) - self.count.soc, 1.0, r, floor_var)
+
     def _init_state(self, soc: float, soc_var: float) -> None:
         self.at_rest = False
+        self._rest_fused = False
         self._temp_c: float | None = None
+        if not hasattr(self, "count"):
+            t = self.tuning
+            errors = CountErrorModel(
+                float(t["current_offset_std_a"]),
+                float(t["current_gain_std"]),
+                float(t["capacity_std_frac"]),
+            )
+            self.count = ChargeCount(
+                errors, self.capacity_ah, self.battery.coulomb_efficiency_charge
+            )
+        self.count.anchor(soc, soc_var)
         super()._init_state(soc, soc_var)
         self.rest_s = 0.0
         self.current_lp_a = 0.0
@@ -144,6 +242,7 @@ class Hybrid(T2rcUkf):
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         super()._predict(dt_s, current_a, next_current_a, temp_c)
+        self.count.step(current_a, dt_s)
         # A 40 mA-noise Hall sensor reads past 0.1 A every few seconds at rest: the rest test
         # looks at the current low-passed over rest_filter_tau_s, not at single samples.
         w = 1.0 - math.exp(-dt_s / self.tuning["rest_filter_tau_s"])
@@ -184,6 +283,12 @@ class Hybrid(T2rcUkf):
             v_pred = float(self._hx(self.kf.x[np.newaxis, :], current_a, temp_c)[0, 0])
             return v_pred, math.nan, math.nan
         v_pred, innov, nis = super()._update(current_a, voltage_v, temp_c)
+        if self.at_rest:
+            self._fuse_rest_ocv(current_a, voltage_v, temp_c)
+        else:
+            self._rest_fused = False
+        if not math.isnan(nis):
+            self._follow_trusted_filter(getattr(self, "_dt_last", 0.0), temp_c)
         if not math.isnan(nis):
             dt = getattr(self, "_dt_last", 0.0)
             w = 1.0 - math.exp(-dt / self.tuning["nis_tau_s"]) if dt > 0.0 else 0.0

@@ -8,10 +8,13 @@ initial std 0.1): for each ``<bag>/<estimator>``, SoC, its std and the state at 
 gate); test/ros/test_node.py holds the live node to the offline estimator on 3000 samples.
 At the split the whole runs were compared once as well (all 17 bags, 1.2 M samples, every
 estimator, SoC, std and state): the largest difference was 0.0, and the gate rejected none.
+Since the guard (issue 24) the hybrid is compared with its guard off (``model_prior: 1``):
+its UKF is what it was; what the guard publishes is tested in test_guard.py.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -42,13 +45,20 @@ def test_every_estimator_gives_what_it_gave_before(bag: str) -> None:
     series = read_recording(bag_path(bag)).window(0, N)
     battery = load_battery_params(battery_file_for(series))
     for name in sorted(ESTIMATORS):
-        result = replay_estimator(series, battery, name, "ref", bag)
+        b = battery
+        if name == "hybrid":
+            # The guard (issue 24, estimators/guard.py) changed what the hybrid publishes, not
+            # its filter: with the guard off (model_prior 1) it gives what it gave before.
+            filters = dict(battery.filters)
+            filters["hybrid"] = {**filters.get("hybrid", {}), "model_prior": 1.0}
+            b = replace(battery, filters=filters)
+        result = replay_estimator(series, b, name, "ref", bag)
         assert not result.counts, result.counts  # the gate passes every bundled sample
         e = result.estimates
         key = f"{bag}/{name}"
         # 1e-12: the issue's bound; the arithmetic is the same, so it is met to the bit.
+        np.testing.assert_allclose(e.x[::STEP], before()[f"{key}/x"], rtol=0, atol=1e-12)
         np.testing.assert_allclose(e.soc[::STEP], before()[f"{key}/soc"], rtol=0, atol=1e-12)
         np.testing.assert_allclose(
             e.soc_std[::STEP], before()[f"{key}/soc_std"], rtol=0, atol=1e-12
         )
-        np.testing.assert_allclose(e.x[::STEP], before()[f"{key}/x"], rtol=0, atol=1e-12)

@@ -1,0 +1,143 @@
+"""The do-no-harm guard: a charge count with its own error budget, and a two-model fusion.
+
+A voltage-based filter is only as good as its voltage model. Where the model is wrong (a cold
+pack outside the temperatures it was identified at, another pack of the same kind, an aged
+one), every update reads the model's error as SoC, and the filter's covariance, which assumes
+the model right, does not show it (issue 24: 2-12 % errors reported as 0.1-0.9 %). Coulomb
+counting from the same start has no such failure: its error is the current sensor's and the
+capacity's, and both are known in advance from the sensor's datasheet and the pack's spread.
+
+The guard keeps that count beside the filter and asks, every sample, which of two hypotheses
+explains their difference ``d = u - c`` (``u`` the filter's SoC, ``c`` the count's):
+
+* **the model holds** (prior probability ``p``): the filter corrects the count's own errors, so
+  ``d ~ N(0, P_u + P_c)``;
+* **the model does not hold** (``1 - p``): the filter has been dragged anywhere, ``d`` uniform
+  over [-1, 1] (density 1/2).
+
+The posterior weight of the first is ``w = p N(d) / (p N(d) + (1 - p) / 2)``, and the published
+estimate is the two-component mixture (Bar-Shalom, Li & Kirubarajan, *Estimation with
+Applications to Tracking and Navigation*, 2001, §11.6: the moments of a Gaussian mixture):
+
+    soc = w u + (1 - w) c,        var = w P_u + (1 - w) P_c + w (1 - w) d^2
+
+so a filter that strays further from the count than the count's own error budget explains is
+weighed out, and the variance carries the disagreement (an honest sigma, not the filter's).
+The filter itself runs unchanged beside the guard: when its model holds again its ``d`` comes
+back within the budget and its weight returns.
+
+The count's variance since its anchor (a start, a reset, a CC-CV end, a rest OCV reading):
+
+    P_c = P_0 + (s_b t / (3600 Q))^2 + (s_g^2 + s_Q^2) (c - c_0)^2
+
+``s_b`` the current sensor's offset std (A), ``s_g`` its gain std, ``s_Q`` the capacity's
+relative std (pack-to-pack spread, ageing): bias-type errors, so they grow linearly with time
+and charge moved, not as a random walk. Two readings are fused into the count as scalar Kalman
+updates, each result becoming its new anchor: a rest reading of the OCV (once per rest,
+linearized at the count's own SoC, so a millivolt on LFP's plateau moves it as little as it
+moves the filter), and, while the model is trusted (inside the temperatures it was identified
+at, its innovations consistent), the filter's own SoC, de-weighted by its correlation: one
+independent reading per ``follow_tau_s``, its variance ``max(P_u, model_soc_std^2)``, the
+count's variance floored at ``model_soc_std^2`` (the UKF's ``P_u`` takes the model's error as
+white, so it leaves out what a persistent one costs; the guard floors ``P_u`` there too). So a
+wrong start
+that the filter corrects at light load is followed within minutes, and a model dragged outside
+its envelope is not. A gap or a consistency inflation of the filter inflates the count too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..models.coulomb import coulomb_step
+from ..units import SECONDS_PER_HOUR
+
+#: A SoC variance past which nothing is known (as ``base.MAX_SOC_VAR``).
+MAX_SOC_VAR = 1.0
+
+#: Density of the "model does not hold" hypothesis: d uniform over [-1, 1].
+_WRONG_MODEL_DENSITY = 0.5
+
+
+@dataclass(frozen=True)
+class CountErrorModel:
+    """What coulomb counting gets wrong, from the sensor's datasheet and the pack's spread."""
+
+    current_offset_std_a: float
+    current_gain_std: float
+    capacity_std_frac: float
+
+    def __post_init__(self) -> None:
+        for name in ("current_offset_std_a", "current_gain_std", "capacity_std_frac"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+
+
+class ChargeCount:
+    """Coulomb counting from an anchor, with the variance of :class:`CountErrorModel`."""
+
+    def __init__(
+        self, errors: CountErrorModel, capacity_ah: float, efficiency_charge: float
+    ) -> None:
+        self.errors = errors
+        self.capacity_ah = capacity_ah
+        self.efficiency_charge = efficiency_charge
+        self.anchor(0.5, 1.0)
+
+    def anchor(self, soc: float, soc_var: float) -> None:
+        """Start counting again from ``soc`` (clipped to [0, 1]) with variance ``soc_var``."""
+        self.soc = self.soc_anchor = min(max(soc, 0.0), 1.0)
+        self.var_anchor = soc_var
+        self.elapsed_s = 0.0
+
+    def step(self, current_a: float, dt_s: float) -> None:
+        """Count ``current_a`` (positive = discharge) held over ``dt_s``."""
+        soc = coulomb_step(self.soc, current_a, dt_s, self.capacity_ah, self.efficiency_charge)
+        self.soc = min(max(soc, 0.0), 1.0)
+        # As the estimators' clipping does (base.py): the clipped amount becomes variance.
+        self.var_anchor = min(self.var_anchor + (soc - self.soc) ** 2, MAX_SOC_VAR)
+        self.elapsed_s += dt_s
+
+    @property
+    def var(self) -> float:
+        """``P_c`` (module docstring): the anchor's variance plus the sensor's and capacity's."""
+        e = self.errors
+        offset = e.current_offset_std_a * self.elapsed_s / (SECONDS_PER_HOUR * self.capacity_ah)
+        moved = self.soc - self.soc_anchor
+        scale_var = e.current_gain_std**2 + e.capacity_std_frac**2
+        return self.var_anchor + offset * offset + scale_var * moved * moved
+
+    def inflate(self, var: float) -> None:
+        """Grow the variance by ``var`` (a gap, a consistency inflation)."""
+        self.var_anchor += var
+
+    def fuse(self, innovation: float, h: float, r: float, var_floor: float = 0.0) -> None:
+        """Scalar Kalman update with a reading ``y = h SoC + noise(r)`` whose innovation (reading
+        minus ``h`` times the count) is ``innovation``; the result, its variance no smaller
+        than ``var_floor``, is the new anchor."""
+        p = self.var
+        k = p * h / (h * h * p + r)
+        self.anchor(self.soc + k * innovation, max((1.0 - k * h) * p, var_floor))
+
+
+@dataclass(frozen=True)
+class Guarded:
+    """The guard's output: the published SoC and variance, and the model's weight ``w``."""
+
+    soc: float
+    soc_var: float
+    model_weight: float
+
+
+def guard(u: float, u_var: float, c: float, c_var: float, prior: float) -> Guarded:
+    """The two-hypothesis mixture of the module docstring (``prior`` = p, the model holds)."""
+    v = max(u_var + c_var, 1e-12)
+    d = u - c
+    right = prior * math.exp(-0.5 * d * d / v) / math.sqrt(2.0 * math.pi * v)
+    wrong = (1.0 - prior) * _WRONG_MODEL_DENSITY
+    w = right / (right + wrong) if right + wrong > 0.0 else 0.0
+    soc = w * u + (1.0 - w) * c
+    var = w * u_var + (1.0 - w) * c_var + w * (1.0 - w) * d * d
+    return Guarded(soc, var, w)

@@ -1,0 +1,54 @@
+"""Do no harm where nobody tuned (issue 24), on measured cells: the hybrid against coulomb
+counting from the same start, with a file that does not cover the cold.
+
+benchmarks/studies/do_no_harm.py's Panasonic NCR18650PF cases: the file identified from the
+25 degC HPPC alone, so the 0 and 10 degC drive cycles lie 12-25 degC outside the identified
+temperatures. Split (the script's): the 10 degC cycles are where the guard's rule was looked
+at (tuning), the 0 degC cycles the validation. The measured data (../shared/real-data) are read
+where they are and never copied; the test skips without them.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import pytest
+from conftest import REPO_ROOT, load_benchmark
+
+DATA = REPO_ROOT.parent / "shared" / "real-data"
+
+pytestmark = pytest.mark.skipif(
+    not (DATA / "panasonic18650pf_25C_HPPC.csv").is_file(),
+    reason=f"no measured Panasonic cells in {DATA} (../shared/real-data beside the checkout)",
+)
+
+
+@cache
+def cases() -> dict:
+    study = load_benchmark("studies/do_no_harm")
+    found = study.panasonic_cases(DATA, study.LI_ION_EA_J_PER_MOL)  # the script's default file
+    return {c.name: (study, c) for c in found if c.split != "inside"}
+
+
+COLD = [
+    "panasonic18650pf_0C_Cycle_1",
+    "panasonic18650pf_0C_LA92",
+    "panasonic18650pf_0C_UDDS",
+    "panasonic18650pf_0C_US06",
+    "panasonic18650pf_10C_Cycle_1",
+    "panasonic18650pf_10C_LA92",
+    "panasonic18650pf_10C_US06",
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", COLD)
+def test_hybrid_does_no_harm_outside_its_temperatures(name: str) -> None:
+    study, case = cases()[name]
+    row = study.score(case, "hybrid")
+    # The issue's rule, as it states it: max error at most 1 point above coulomb counting's
+    # (same start, std 0.1: the accuracy tests' start). Measured before the guard: 0 degC
+    # margins 7.96 / 0.02 / 3.25 / 4.39 points, coverage 24-58 %.
+    assert row["margin"] <= 1.0, row
+    # The issue's coverage target for the reported sigma: 95 % +- 5 %.
+    assert 90.0 <= row["coverage"] <= 100.0, row

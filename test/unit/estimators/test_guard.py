@@ -1,0 +1,99 @@
+"""The do-no-harm guard (estimators/guard.py) and the hybrid that publishes through it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT
+from scipy.stats import norm
+
+from soc_estimator_ros.estimators import make_estimator
+from soc_estimator_ros.estimators.guard import ChargeCount, CountErrorModel, guard
+from soc_estimator_ros.params import load_battery_params
+
+SLA = load_battery_params(REPO_ROOT / "config" / "sla_12v5ah.yaml")
+ERRORS = CountErrorModel(current_offset_std_a=0.02, current_gain_std=0.005, capacity_std_frac=0.03)
+
+
+@pytest.mark.parametrize(("d", "prior"), [(0.0, 0.9), (0.02, 0.9), (0.05, 0.5), (0.2, 0.99)])
+def test_guard_is_the_mixture_of_the_two_hypotheses(d: float, prior: float) -> None:
+    u_var, c, c_var = 0.01**2, 0.6, 0.015**2
+    out = guard(c + d, u_var, c, c_var, prior)
+    # The weight by Bayes' rule with scipy's normal density, and the uniform density 1/2.
+    right = prior * norm.pdf(d, 0.0, math.sqrt(u_var + c_var))
+    w = right / (right + (1.0 - prior) * 0.5)
+    assert out.model_weight == pytest.approx(w, rel=1e-12)
+    # The published moments are the mixture's, integrated on a grid: 2e-5 wide over +-12 sigma
+    # of both components, so the Riemann sums are exact to about 1e-9 (relative 1e-6 asked).
+    x = np.arange(c - 0.5, c + d + 0.5, 2e-5)
+    pdf = w * norm.pdf(x, c + d, math.sqrt(u_var)) + (1 - w) * norm.pdf(x, c, math.sqrt(c_var))
+    pdf /= pdf.sum()
+    mean = float(np.sum(x * pdf))
+    assert out.soc == pytest.approx(mean, rel=1e-6)
+    assert out.soc_var == pytest.approx(float(np.sum((x - mean) ** 2 * pdf)), rel=1e-6)
+
+
+def test_guard_follows_an_agreeing_filter_and_drops_a_stray_one() -> None:
+    agree = guard(0.601, 1e-4, 0.6, 1e-4, 0.9)
+    assert agree.model_weight > 0.99 and abs(agree.soc - 0.601) < 1e-4
+    stray = guard(0.75, 1e-4, 0.6, 1e-4, 0.9)  # 10.6 sigma apart
+    assert stray.model_weight < 1e-12 and stray.soc == pytest.approx(0.6, abs=1e-12)
+    assert stray.soc_var == pytest.approx(1e-4, rel=1e-9)  # the count's, as it is published
+
+
+def test_count_variance_is_the_error_budget() -> None:
+    count = ChargeCount(ERRORS, capacity_ah=5.0, efficiency_charge=0.9)
+    count.anchor(0.8, 1e-4)
+    for _ in range(3600):
+        count.step(1.0, 1.0)  # one hour at 1 A: 0.2 of 5 Ah
+    assert count.soc == pytest.approx(0.6, abs=1e-12)
+    offset = 0.02 * 3600.0 / (3600.0 * 5.0)  # 20 mA for an hour, over 5 Ah
+    expected = 1e-4 + offset**2 + (0.005**2 + 0.03**2) * 0.2**2
+    assert count.var == pytest.approx(expected, rel=1e-9)
+    # Charging counts with the coulomb efficiency, as the estimators' model does.
+    count.anchor(0.5, 1e-4)
+    count.step(-5.0, 360.0)
+    assert count.soc == pytest.approx(0.5 + 0.9 * 5.0 * 360.0 / 3600.0 / 5.0, abs=1e-12)
+
+
+def test_count_fuse_is_a_scalar_kalman_update_and_clips() -> None:
+    count = ChargeCount(ERRORS, capacity_ah=5.0, efficiency_charge=1.0)
+    count.anchor(0.5, 0.01)
+    count.fuse(0.1, 1.0, 0.01)  # K = 0.5
+    assert count.soc == pytest.approx(0.55) and count.var == pytest.approx(0.005)
+    count.fuse(0.0, 1.0, 1e-9, var_floor=1e-4)
+    assert count.var == pytest.approx(1e-4)  # never surer than the floor
+    count.anchor(0.999, 1e-4)
+    count.step(-5.0, 3600.0)  # an hour of 1 C charge from full: clipped, the excess is variance
+    assert count.soc == 1.0 and count.var > 0.9
+
+
+def feed(est, minutes: float, current_a: float, voltage_v: float, temp_c: float) -> None:
+    for k in range(int(minutes * 600)):
+        est.step(0.1 * k, current_a, voltage_v, temp_c)
+
+
+def test_outside_the_envelope_the_published_soc_keeps_to_the_count() -> None:
+    """A voltage 0.3 below what the counted SoC gives, at 0.1 C, 25 degC below the SLA file's
+    identified range (5-25 degC): the UKF follows the voltage, the published SoC does not."""
+    est = make_estimator("hybrid", SLA, 0.8, 0.02)
+    ocv_low = est.model.ocv.ocv(0.5)
+    feed(est, 20.0, 0.5, ocv_low, -20.0)
+    counted = 0.8 - 0.5 * 1200.0 / 3600.0 / SLA.capacity_ah
+    assert est.count.soc == pytest.approx(counted, abs=1e-3)  # 1e-3: 0.1 s zero-order hold
+    assert est.x[0] < counted - 0.1  # the UKF went with the voltage
+    assert abs(est.soc - counted) < 0.005  # the published SoC did not
+    off = make_estimator("hybrid", SLA, 0.8, 0.02, tuning={"model_prior": 1.0})
+    feed(off, 20.0, 0.5, ocv_low, -20.0)
+    assert off.soc == float(off.x[0]) and off.soc_var == float(off.p[0, 0])  # the guard off
+
+
+def test_inside_the_envelope_a_wrong_start_is_followed() -> None:
+    """The same voltage at 25 degC, from a start 0.3 too high with std 0.1 (a 3-sigma error):
+    the UKF corrects it at light load and the count follows the trusted UKF."""
+    est = make_estimator("hybrid", SLA, 0.8, 0.1)
+    feed(est, 10.0, 0.5, est.model.ocv.ocv(0.5), 25.0)
+    assert abs(est.soc - float(est.x[0])) < 0.02  # the issue's 2 % within 10 minutes
+    assert est.x[0] < 0.6
