@@ -14,7 +14,10 @@ key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
 * ERROR: pack voltage above or below the battery's voltage limits;
 * WARN: extrapolating: the temperature lies outside the range the battery file's model was
   identified at (plus its margin; the model's resistances then follow Arrhenius, and the hybrid
-  weighs the voltage less).
+  weighs the voltage less);
+* WARN: the hybrid's guard (``estimators/guard.py``) weighs its voltage model below
+  :data:`MODEL_WEIGHT_WARN`: the filter and the charge count disagree beyond the count's error
+  budget, and the published SoC follows the count.
 
 The values hold the estimate, the counts, the level and its thresholds, the charge phase, and
 the runtime monitor's latest prediction under ``battery/runtime``'s labels.
@@ -30,6 +33,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any
 
+from ..estimators.hybrid import Hybrid
 from ..messages import RUNTIME_FIELDS
 from ..runtime import BatteryLevel
 from ..tracking import REJECTIONS, Tracker
@@ -37,6 +41,8 @@ from ..units import NS_PER_S, ros_current_from_core
 
 #: The SoC std below which diagnostics report ``converged: true``.
 CONVERGED_SOC_STD = 0.02
+#: The guard's model weight below which diagnostics warn (the count outweighs the model).
+MODEL_WEIGHT_WARN = 0.5
 
 
 class Level(IntEnum):
@@ -134,6 +140,16 @@ class Diagnostics:
                         "temperature range",
                     )
                 )
+        hybrid = tr.estimator if isinstance(tr.estimator, Hybrid) else None
+        guarded = hybrid.guarded() if hybrid is not None and est is not None else None
+        if guarded is not None and guarded.model_weight < MODEL_WEIGHT_WARN:
+            problems.append(
+                (
+                    Level.WARN,
+                    f"voltage model weighed out: weight {guarded.model_weight:.2f}, the SoC "
+                    "follows the charge count",
+                )
+            )
         level = max((lvl for lvl, _ in problems), default=Level.OK)
         message = "; ".join(m for _, m in problems) or "OK"
         nan = math.nan
@@ -184,5 +200,13 @@ class Diagnostics:
             values.append(("nis_avg", float(tr.estimator.nis_avg)))
         if hasattr(tr.estimator, "ocv_corrections"):
             values.append(("ocv_corrections", int(tr.estimator.ocv_corrections)))
+        if hybrid is not None and guarded is not None:
+            charge_count = hybrid.count
+            values += [
+                ("model_weight", guarded.model_weight),
+                ("soc_model", float(hybrid.x[hybrid.soc_index])),
+                ("soc_count", charge_count.soc),
+                ("soc_count_std", math.sqrt(charge_count.var)),
+            ]
         values += extra or []
         return Report(level, message, [(k, _text(v)) for k, v in values])

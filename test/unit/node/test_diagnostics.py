@@ -1,0 +1,43 @@
+"""node/diagnostics.py without ROS: the guard's weight and the count in the report."""
+
+from __future__ import annotations
+
+from conftest import REPO_ROOT
+
+from soc_estimator_ros.node.diagnostics import Diagnostics, Level
+from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.tracking import GateConfig, Sample, Tracker, TrackerConfig
+
+SLA = load_battery_params(REPO_ROOT / "config" / "sla_12v5ah.yaml")
+S = 1_000_000_000
+
+
+def report_after(temperature_c: float):
+    """20 minutes at 0.5 A with a voltage 0.3 SoC below what the counted SoC gives."""
+    tr = Tracker(
+        SLA,
+        GateConfig.from_limits(SLA.limits),
+        TrackerConfig(estimator="hybrid", initial_soc=0.8, initial_soc_std=0.02),
+    )
+    v = SLA.thevenin_model().ocv.ocv(0.5)
+    for k in range(12_000):
+        tr.process(Sample(k * S // 10, 0.5, v, temperature_c))
+    return Diagnostics(tr, "sla.yaml", 0.0).report(1200.0, stale_timeout_s=1e9)
+
+
+def test_a_weighed_out_model_is_a_warning_with_the_count_beside_it() -> None:
+    # -20 degC: 22 degC below the SLA file's 5-25 degC (margin 3): the guard keeps the count.
+    rep = report_after(-20.0)
+    values = dict(rep.values)
+    assert rep.level is Level.WARN and "voltage model weighed out" in rep.message, rep.message
+    assert "extrapolating" in rep.message
+    assert float(values["model_weight"]) < 0.5
+    # The published SoC is the count's (the test_guard.py case), the model's is far below.
+    assert abs(float(values["soc"]) - float(values["soc_count"])) < 0.005
+    assert float(values["soc_model"]) < float(values["soc_count"]) - 0.1
+
+
+def test_no_warning_where_the_model_is_trusted() -> None:
+    rep = report_after(25.0)  # inside the identified range: the count follows the UKF
+    assert "weighed out" not in rep.message, rep.message
+    assert float(dict(rep.values)["model_weight"]) >= 0.5
