@@ -103,7 +103,7 @@ class Hybrid(T2rcUkf):
         "bias_std_v": 0.06,  # V: stationary std of the model's voltage error under load
         "bias_tau_s": 600.0,  # s: its correlation time
         # Item 6: degC outside the identified temperatures at which the measurement std has
-        # grown by sqrt(2); chosen on the tuning set (docs/accuracy.md, "Outside the envelope").
+        # grown by sqrt(2); chosen on the tuning set (docs/accuracy.md, "Do no harm").
         "extrapolation_scale_c": 2.0,
         # Item 7, the guard: the count's error budget, from the sensor and the pack's spread
         # (bags/README.md "Sensors": a Hall sensor's offset within +-30 mA and gain within
