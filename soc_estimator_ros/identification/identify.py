@@ -27,7 +27,7 @@ from .fit import (
     onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
-from .model_error import pooled_rms, residual_on_grid, with_bias_std
+from .model_error import ModelError, pooled_rms, residual_on_grid, with_bias_std
 from .segment import IdentificationError, Pulse, segment_pulses, start_after_last_charge
 from .surface import MODE_GAIN, LagStage, LagWindow, fit_surface_lag
 
@@ -48,6 +48,7 @@ class IdentificationResult:
     levels: list[PulseFit] = field(default_factory=list)  # one fit per SoC level (the tables)
     temperature_c: float = math.nan  # the test's temperature (median of its sensor)
     kinetic: list[KineticFit] = field(default_factory=list)  # rate test fits, when given
+    fitted: list[Pulse] = field(default_factory=list)  # the windows of ``pulses``, in order
 
 
 def zero_current_offset(
@@ -223,6 +224,7 @@ def identify(
         )
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
+    fitted: list[Pulse] = []
     ocv_curve = OcvCurve(ocv_soc, ocv_v)
     for n, p in enumerate(pulses, 1):
         if progress:
@@ -243,6 +245,7 @@ def identify(
             continue
         fits.append(fit)
         rcs.append(rc_fit)
+        fitted.append(p)
     if not fits:
         raise IdentificationError(f"none of the {len(pulses)} pulse fits succeeded")
     by_soc = [level_fit(g) for g in group_by_soc(fits)]
@@ -301,6 +304,7 @@ def identify(
         by_soc,
         test_temperature_c(test),
         kinetic,
+        fitted,
     )
 
 
@@ -417,28 +421,47 @@ def counted(
     return test, 1.0 - charge_removed_ah(test) / capacity_ah
 
 
-def with_model_error(
-    battery: BatteryParams, tests: list[tuple[BatterySeries, np.ndarray]], notes: list[str]
-) -> BatteryParams:
-    """``battery`` with the hybrid's ``bias_std_v`` measured as its own model's voltage error
-    over ``tests`` (at the reference temperature, each from full with its counted SoC):
-    ``model_error.py``. When it cannot be measured the template's value stays (noted)."""
+def model_error(
+    battery: BatteryParams,
+    tests: list[tuple[BatterySeries, np.ndarray]],
+    notes: list[str],
+    v_models: list[np.ndarray] | None = None,
+) -> ModelError | None:
+    """The model's own voltage error over ``tests`` (at the reference temperature, each from
+    full with its counted SoC): ``model_error.py``; None (noted) when too few seconds of them
+    run from a load to the hybrid's rest. ``v_models``: the model's voltage over each test with
+    its SoC imposed (:func:`simulate_open_loop`, ``gap_s`` 0), when already simulated."""
     tuning = {**Hybrid.default_tuning, **battery.filters.get("hybrid", {})}
     residuals = []
-    for test, soc in tests:
-        v_model, _ = simulate_open_loop(battery, test, float(soc[0]), soc, gap_s=0.0)
+    for n, (test, soc) in enumerate(tests):
+        if v_models is None:
+            v_model, _ = simulate_open_loop(battery, test, float(soc[0]), soc, gap_s=0.0)
+        else:
+            v_model = v_models[n]
         residuals.append(residual_on_grid(battery, test, soc, v_model, tuning))
     try:
         error = pooled_rms(residuals)
     except IdentificationError as exc:
-        notes.append(f"{exc}: the template's filters.hybrid.bias_std_v kept")
-        return battery
+        default_mv = 1000 * float(Hybrid.default_tuning["bias_std_v"])
+        notes.append(
+            f"{exc}: filters.hybrid.bias_std_v left at the code default ({default_mv:.0f} mV)"
+        )
+        return None
     notes.append(
         f"model error (the SoC imposed) over {len(tests)} test(s), {error.seconds} s from a "
         f"load to {tuning['rest_min_s']:.0f} s of rest: {1000 * error.rms_v:.1f} mV RMS "
         "(filters.hybrid.bias_std_v)"
     )
-    return with_bias_std(battery, error)
+    return error
+
+
+def with_model_error(
+    battery: BatteryParams, tests: list[tuple[BatterySeries, np.ndarray]], notes: list[str]
+) -> BatteryParams:
+    """``battery`` with the hybrid's ``bias_std_v`` measured as its own model's voltage error
+    over ``tests`` (:func:`model_error`); when it cannot be measured, without one (the code
+    default; never another model's value)."""
+    return with_bias_std(battery, model_error(battery, tests, notes))
 
 
 def rate_test_fits(
