@@ -9,12 +9,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..estimators.hybrid import Hybrid
+from ..models.coulomb import coulomb_efficiency
 from ..models.ocv import OcvCurve
 from ..models.rc_saft import RcModelParams
 from ..models.tables import ParamTable
 from ..models.thevenin import RcBranch, TheveninParams
 from ..params import BatteryParams, OcvTable
 from ..series import BatterySeries
+from ..units import SECONDS_PER_HOUR
 from .fit import (
     ONSET_BEND_V,
     PulseFit,
@@ -603,24 +605,30 @@ def simulate_open_loop(
     soc_track: np.ndarray | None = None,
     gap_s: float = 10.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`simulate_voltage`'s voltage (V) and the model's SoC at every sample."""
+    """:func:`simulate_voltage`'s voltage (V) and the model's SoC at every sample.
+
+    The SoC is counted sample by sample (``TheveninModel.step``'s coulomb count, set from
+    ``soc_track`` after each gap); the voltage along it in one pass
+    (``TheveninModel.voltage_along``: every value that of the per-sample step / surface_step /
+    terminal_voltage loop, to the last bit, at a fraction of its cost).
+    """
     model = battery.thevenin_model()
-    x = model.rested_state(soc0)
-    z = model.surface_rest()  # the surface lag's modes (none without one)
-    out = np.empty(series.t_s.size)
+    if not series.t_s.size:
+        return np.empty(0), np.empty(0)
+    dt = np.diff(series.t_s, prepend=series.t_s[:1])  # dt[0] = 0: no step into sample 0
     soc = np.empty(series.t_s.size)
-    temps = series.temperature_c
-    for k in range(series.t_s.size):
-        temp = None if math.isnan(temps[k]) else float(temps[k])
-        if k:
-            dt = float(series.t_s[k] - series.t_s[k - 1])
-            z = model.surface_step(z, float(series.current_a[k - 1]), dt, float(x[0]))
-            x = model.step(x, float(series.current_a[k - 1]), dt, temp)
-            if soc_track is not None and dt > gap_s:
-                x[0] = soc_track[k]
-        soc[k] = x[0]
-        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp, sum(z))
-    return out, soc
+    soc[0] = soc0
+    per_ah = SECONDS_PER_HOUR * model.capacity_ah
+    ce = model.coulomb_efficiency_charge
+    amps, dts = series.current_a.tolist(), dt.tolist()
+    track = None if soc_track is None else np.asarray(soc_track, dtype=float).tolist()
+    s = float(soc[0])
+    for k in range(1, soc.size):
+        s = s - coulomb_efficiency(amps[k - 1], ce) * amps[k - 1] * dts[k] / per_ah
+        if track is not None and dts[k] > gap_s:
+            s = track[k]
+        soc[k] = s
+    return model.voltage_along(soc, series.current_a, dt, series.temperature_c), soc
 
 
 def voltage_rmse(
