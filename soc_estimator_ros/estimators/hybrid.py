@@ -12,11 +12,15 @@ papers report:
    of capacity) the sample only propagates the state (coulomb counting plus the RC dynamics);
    the voltage updates the SoC at light load and at rest, as DCC-EKF (seed 001) does. A file
    identified with a rate test (Butler-Volmer drop, saturating fastest branch) covers the rate
-   test's currents: both bundled files set ``filters.hybrid.update_c_rate_max`` to its top
-   rate, 6 C (the SLA model follows the field runs within 21-26 mV, the LFP one with its
-   two-mode surface lag within 40-46 mV, with ``r_per_a`` 0.1 V/A; docs/accuracy.md: on LFP's cold
-   run, a start at full under 9 A, the updates under load hold the SoC in the knee, where the
-   voltage tells it, before a light-load update with a wide prior can move it onto the plateau).
+   test's currents. ``soc_identify`` derives ``filters.hybrid.update_c_rate_max`` from the tests
+   (``identification/tuning.py``): the rate test's top step (the bundled files: SLA 6.0 C, LFP
+   6.2 C; the SLA model follows the field runs within 21-26 mV, the LFP one with its two-mode
+   surface lag within 40-46 mV, with ``r_per_a`` 0.1 V/A given on its command; docs/accuracy.md:
+   on LFP's cold run, a start at full under 9 A, the updates under load hold the SoC in the
+   knee, where the voltage tells it, before a light-load update with a wide prior can move it
+   onto the plateau), else the pulses' rate where the linear model holds (0.2 C from a pulse
+   test alone: with the 6 C of a file with the kinetic drop, the hybrid on such an SLA file read
+   the bursts through a model 1-2 V wrong, 14-27 % MAE; with 0.2 C, 0.5-1.5 %).
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
    (seed 000 Fig. 11b: the Thevenin model's voltage error is larger than the RC model's under
    load). ``R = r + (r_per_a I)^2``, so heavy load pulls the SoC less than a rest does.

@@ -3,7 +3,7 @@
     soc_identify INPUT [INPUT ...] --chemistry {li_ion,lfp,sla} [--capacity-ah X]
                  [--slow-discharge INPUT2] [--temperature-c T [T ...]]
                  [--reference-capacity-ah Q] [--rate-test RATE [RATE ...]] [--load-test LOAD]
-                 [--template FILE]
+                 [--template FILE] [--tuning BLOCK.KEY=VALUE ...]
                  [--current-sign ...] [--topic T] --output params.yaml [--plot fit.png]
 
 INPUT is a rosbag2 bag (the bridge's BatteryState topic) or a CSV
@@ -16,10 +16,14 @@ With ``--rate-test`` (one rate test per INPUT, in the same order: steps from res
 currents at each SoC level), R0 becomes the ohmic part and the current-dependent overpotential
 is added (``kinetics.py``). With ``--load-test`` (one, at the reference temperature: 10 % steps
 at the robot's heavy load with long rests), its windows join the surface lag's fit (``surface.py``).
-Everything not identified (name, limits, filter tunings) comes from ``--template`` (default:
-the bundled file of the chemistry), so regenerating a bundled file keeps its tunings; but one:
-``filters.hybrid.bias_std_v``, the size of the hybrid's model-error state, is the identified
-model's own voltage error on the reference temperature's tests (``model_error.py``).
+Everything not identified (name, limits) comes from ``--template`` (default: the bundled file
+of the chemistry), and so do the filter tunings that do not describe the model. Those that do
+never come from the template (``tuning.py``): the hybrid's ``bias_std_v`` is the identified
+model's own voltage error on the reference temperature's tests (``model_error.py``), its
+voltage-update gate ``update_c_rate_max`` the highest C-rate the model was fitted at and its
+``r_per_a`` what the model's error per current bin needs (else the code default). An entry
+measured elsewhere (on field runs) is given with ``--tuning BLOCK.KEY=VALUE``; the report says
+where each entry comes from.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import argparse
 import math
 import shlex
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -51,9 +55,9 @@ from .identify import (
     identify,
     over_temperature,
     test_temperature_c,
-    with_model_error,
 )
 from .segment import IdentificationError
+from .tuning import identified_tunings, parse_given
 
 
 def load_test(
@@ -81,8 +85,10 @@ def identify_tests(
     progress,
     rate_tests: list[BatterySeries] | None = None,
     load_test: BatterySeries | None = None,
+    tuning: Mapping[tuple[str, str], float | tuple[float, ...]] | None = None,
 ) -> tuple[BatteryParams, list[IdentificationResult]]:
-    """One test, or one per temperature (see the module docstring)."""
+    """One test, or one per temperature (see the module docstring); ``tuning``: filter entries
+    given (``--tuning``), written as given."""
     if temperatures_c is not None and len(temperatures_c) != len(tests):
         raise IdentificationError(
             f"--temperature-c gives {len(temperatures_c)} temperature(s) for {len(tests)} tests"
@@ -98,7 +104,8 @@ def identify_tests(
         )
         if temperatures_c is not None:
             res.temperature_c = temperatures_c[0]
-        return _with_model_error(res.battery, res, rates[0], load_test, progress), [res]
+        battery = _with_tunings(res.battery, res, [res], rates[0], load_test, tuning, progress)
+        return battery, [res]
     temps = temperatures_c or [test_temperature_c(t) for t in tests]
     if any(math.isnan(t) for t in temps):
         raise IdentificationError(
@@ -127,28 +134,33 @@ def identify_tests(
         res.temperature_c = temps[n]
         results.append(res)
     battery = over_temperature(results, ref)
-    return _with_model_error(battery, first, rates[ref], load_test, progress), results
+    return _with_tunings(battery, first, results, rates[ref], load_test, tuning, progress), results
 
 
-def _with_model_error(
+def _with_tunings(
     battery: BatteryParams,
     reference: IdentificationResult,
+    results: list[IdentificationResult],
     rate_test: BatterySeries | None,
     load_test: BatterySeries | None,
+    given: Mapping[tuple[str, str], float | tuple[float, ...]] | None,
     progress,
 ) -> BatteryParams:
-    """``battery`` with the hybrid's ``bias_std_v`` measured on the reference temperature's
-    tests (``model_error.py``): its pulse test as fitted, its rate test and the load test, both
-    from full; noted on ``reference``."""
+    """``battery`` with the filters this identification writes (``tuning.py``): the model's
+    own error measured on the reference temperature's tests (its pulse test as fitted, its rate
+    test and the load test, both from full), the hybrid's gate and current-dependent error
+    derived from them and ``results``' rate tests, the template's model-independent entries and
+    the ``given`` ones; noted on ``reference``."""
     if progress:
-        progress("model error over the reference temperature's tests")
+        progress("model error and filter tunings over the reference temperature's tests")
     assert reference.test is not None and reference.soc_track is not None
     tests = [(reference.test, reference.soc_track)]
     for extra, label in ((rate_test, "rate test"), (load_test, "load test")):
         if extra is not None:
             # from_full's notes on these tests are already in the report (identify)
             tests.append(counted(extra, battery.capacity_ah, [], label))
-    return with_model_error(battery, tests, reference.notes)
+    battery, _ = identified_tunings(battery, reference, results, tests, given)
+    return battery
 
 
 def report(result: IdentificationResult) -> str:
@@ -249,6 +261,13 @@ def build_parser() -> argparse.ArgumentParser:
         "kinetic drop)",
     )
     ap.add_argument("--template", type=Path, help="file to take non-identified values from")
+    ap.add_argument(
+        "--tuning",
+        nargs="+",
+        metavar="BLOCK.KEY=VALUE",
+        help="filter entries measured elsewhere (e.g. on field runs), written as given "
+        'instead of what the tests give (docs/identification.md, "Filter tunings")',
+    )
     add_recording_arguments(ap)
     ap.add_argument("--output", type=Path, required=True, help="parameter YAML to write")
     ap.add_argument("--plot", type=Path, help="PNG of the fits")
@@ -268,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             load_test(path, args.topic, sign, args.reference_capacity_ah) for path in args.input
         ]
         slow = load_test(args.slow_discharge, args.topic, sign) if args.slow_discharge else None
+        given = parse_given(args.tuning or [])
         rate_tests = (
             [load_test(path, args.topic, sign) for path in args.rate_test]
             if args.rate_test
@@ -282,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
             progress=lambda msg: print(f"soc_identify: {msg}", file=sys.stderr, flush=True),
             rate_tests=rate_tests,
             load_test=load_test(args.load_test, args.topic, sign) if args.load_test else None,
+            tuning=given,
         )
     except SocEstimatorError as exc:
         print(f"soc_identify: error: {exc}", file=sys.stderr)

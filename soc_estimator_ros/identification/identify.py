@@ -9,12 +9,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..estimators.hybrid import Hybrid
+from ..models.coulomb import coulomb_efficiency
 from ..models.ocv import OcvCurve
 from ..models.rc_saft import RcModelParams
 from ..models.tables import ParamTable
 from ..models.thevenin import RcBranch, TheveninParams
 from ..params import BatteryParams, OcvTable
 from ..series import BatterySeries
+from ..units import SECONDS_PER_HOUR
 from .fit import (
     ONSET_BEND_V,
     PulseFit,
@@ -27,7 +29,7 @@ from .fit import (
     onset_soc,
 )
 from .kinetics import RATE_PULSE_S, KineticFit, fit_rate_test, fit_saturation, with_kinetics
-from .model_error import pooled_rms, residual_on_grid, with_bias_std
+from .model_error import ModelError, pooled_rms, residual_on_grid, with_bias_std
 from .segment import IdentificationError, Pulse, segment_pulses, start_after_last_charge
 from .surface import MODE_GAIN, LagStage, LagWindow, fit_surface_lag
 
@@ -48,6 +50,7 @@ class IdentificationResult:
     levels: list[PulseFit] = field(default_factory=list)  # one fit per SoC level (the tables)
     temperature_c: float = math.nan  # the test's temperature (median of its sensor)
     kinetic: list[KineticFit] = field(default_factory=list)  # rate test fits, when given
+    fitted: list[Pulse] = field(default_factory=list)  # the windows of ``pulses``, in order
 
 
 def zero_current_offset(
@@ -223,6 +226,7 @@ def identify(
         )
     fits: list[PulseFit] = []
     rcs: list[RcFit] = []
+    fitted: list[Pulse] = []
     ocv_curve = OcvCurve(ocv_soc, ocv_v)
     for n, p in enumerate(pulses, 1):
         if progress:
@@ -243,6 +247,7 @@ def identify(
             continue
         fits.append(fit)
         rcs.append(rc_fit)
+        fitted.append(p)
     if not fits:
         raise IdentificationError(f"none of the {len(pulses)} pulse fits succeeded")
     by_soc = [level_fit(g) for g in group_by_soc(fits)]
@@ -301,6 +306,7 @@ def identify(
         by_soc,
         test_temperature_c(test),
         kinetic,
+        fitted,
     )
 
 
@@ -417,28 +423,47 @@ def counted(
     return test, 1.0 - charge_removed_ah(test) / capacity_ah
 
 
-def with_model_error(
-    battery: BatteryParams, tests: list[tuple[BatterySeries, np.ndarray]], notes: list[str]
-) -> BatteryParams:
-    """``battery`` with the hybrid's ``bias_std_v`` measured as its own model's voltage error
-    over ``tests`` (at the reference temperature, each from full with its counted SoC):
-    ``model_error.py``. When it cannot be measured the template's value stays (noted)."""
+def model_error(
+    battery: BatteryParams,
+    tests: list[tuple[BatterySeries, np.ndarray]],
+    notes: list[str],
+    v_models: list[np.ndarray] | None = None,
+) -> ModelError | None:
+    """The model's own voltage error over ``tests`` (at the reference temperature, each from
+    full with its counted SoC): ``model_error.py``; None (noted) when too few seconds of them
+    run from a load to the hybrid's rest. ``v_models``: the model's voltage over each test with
+    its SoC imposed (:func:`simulate_open_loop`, ``gap_s`` 0), when already simulated."""
     tuning = {**Hybrid.default_tuning, **battery.filters.get("hybrid", {})}
     residuals = []
-    for test, soc in tests:
-        v_model, _ = simulate_open_loop(battery, test, float(soc[0]), soc, gap_s=0.0)
+    for n, (test, soc) in enumerate(tests):
+        if v_models is None:
+            v_model, _ = simulate_open_loop(battery, test, float(soc[0]), soc, gap_s=0.0)
+        else:
+            v_model = v_models[n]
         residuals.append(residual_on_grid(battery, test, soc, v_model, tuning))
     try:
         error = pooled_rms(residuals)
     except IdentificationError as exc:
-        notes.append(f"{exc}: the template's filters.hybrid.bias_std_v kept")
-        return battery
+        default_mv = 1000 * float(Hybrid.default_tuning["bias_std_v"])
+        notes.append(
+            f"{exc}: filters.hybrid.bias_std_v left at the code default ({default_mv:.0f} mV)"
+        )
+        return None
     notes.append(
         f"model error (the SoC imposed) over {len(tests)} test(s), {error.seconds} s from a "
         f"load to {tuning['rest_min_s']:.0f} s of rest: {1000 * error.rms_v:.1f} mV RMS "
         "(filters.hybrid.bias_std_v)"
     )
-    return with_bias_std(battery, error)
+    return error
+
+
+def with_model_error(
+    battery: BatteryParams, tests: list[tuple[BatterySeries, np.ndarray]], notes: list[str]
+) -> BatteryParams:
+    """``battery`` with the hybrid's ``bias_std_v`` measured as its own model's voltage error
+    over ``tests`` (:func:`model_error`); when it cannot be measured, without one (the code
+    default; never another model's value)."""
+    return with_bias_std(battery, model_error(battery, tests, notes))
 
 
 def rate_test_fits(
@@ -580,24 +605,30 @@ def simulate_open_loop(
     soc_track: np.ndarray | None = None,
     gap_s: float = 10.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`simulate_voltage`'s voltage (V) and the model's SoC at every sample."""
+    """:func:`simulate_voltage`'s voltage (V) and the model's SoC at every sample.
+
+    The SoC is counted sample by sample (``TheveninModel.step``'s coulomb count, set from
+    ``soc_track`` after each gap); the voltage along it in one pass
+    (``TheveninModel.voltage_along``: every value that of the per-sample step / surface_step /
+    terminal_voltage loop, to the last bit, at a fraction of its cost).
+    """
     model = battery.thevenin_model()
-    x = model.rested_state(soc0)
-    z = model.surface_rest()  # the surface lag's modes (none without one)
-    out = np.empty(series.t_s.size)
+    if not series.t_s.size:
+        return np.empty(0), np.empty(0)
+    dt = np.diff(series.t_s, prepend=series.t_s[:1])  # dt[0] = 0: no step into sample 0
     soc = np.empty(series.t_s.size)
-    temps = series.temperature_c
-    for k in range(series.t_s.size):
-        temp = None if math.isnan(temps[k]) else float(temps[k])
-        if k:
-            dt = float(series.t_s[k] - series.t_s[k - 1])
-            z = model.surface_step(z, float(series.current_a[k - 1]), dt, float(x[0]))
-            x = model.step(x, float(series.current_a[k - 1]), dt, temp)
-            if soc_track is not None and dt > gap_s:
-                x[0] = soc_track[k]
-        soc[k] = x[0]
-        out[k] = model.terminal_voltage(x, float(series.current_a[k]), temp, sum(z))
-    return out, soc
+    soc[0] = soc0
+    per_ah = SECONDS_PER_HOUR * model.capacity_ah
+    ce = model.coulomb_efficiency_charge
+    amps, dts = series.current_a.tolist(), dt.tolist()
+    track = None if soc_track is None else np.asarray(soc_track, dtype=float).tolist()
+    s = float(soc[0])
+    for k in range(1, soc.size):
+        s = s - coulomb_efficiency(amps[k - 1], ce) * amps[k - 1] * dts[k] / per_ah
+        if track is not None and dts[k] > gap_s:
+            s = track[k]
+        soc[k] = s
+    return model.voltage_along(soc, series.current_a, dt, series.temperature_c), soc
 
 
 def voltage_rmse(

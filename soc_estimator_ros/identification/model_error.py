@@ -89,8 +89,12 @@ def pooled_rms(residuals: Sequence[tuple[np.ndarray, np.ndarray]]) -> ModelError
     return ModelError(rms_v=math.sqrt(square / seconds), seconds=seconds)
 
 
-def with_bias_std(battery: BatteryParams, error: ModelError) -> BatteryParams:
-    """``battery`` with ``filters.hybrid.bias_std_v`` set to ``error``'s RMS."""
+def with_bias_std(battery: BatteryParams, error: ModelError | None) -> BatteryParams:
+    """``battery`` with ``filters.hybrid.bias_std_v`` set to ``error``'s RMS; without the
+    entry (the hybrid's code default) when ``error`` is None."""
     filters = {name: dict(block) for name, block in battery.filters.items()}
-    filters.setdefault("hybrid", {})["bias_std_v"] = error.rms_v
+    if error is not None:
+        filters.setdefault("hybrid", {})["bias_std_v"] = error.rms_v
+    elif "hybrid" in filters:
+        filters["hybrid"].pop("bias_std_v", None)
     return replace(battery, filters=filters)

@@ -102,6 +102,20 @@ class OcvCurve:
         h = soc - x[i]
         return ((self._c3[i] * h + self._c2[i]) * h + self._c1[i]) * h + self._y[i]
 
+    def ocv_each(self, soc: np.ndarray) -> np.ndarray:
+        """:meth:`ocv` at every element of ``soc``, the same operations element by element
+        (each value equal to :meth:`ocv`'s to the last bit; :meth:`ocv_array` is the faster
+        chord approximation)."""
+        soc = np.asarray(soc, dtype=float)
+        x = np.array(self._x)
+        i = np.clip(np.searchsorted(x, soc, side="right") - 1, 0, self._n - 2)
+        h = soc - x[i]
+        c3, c2, c1, y = (np.array(c)[i] for c in (self._c3, self._c2, self._c1, self._y))
+        inside = ((c3 * h + c2) * h + c1) * h + y
+        low = self._y[0] + self._ext_lo * (soc - self._x[0])
+        high = self._y[-1] + self._ext_hi * (soc - self._x[-1])
+        return np.where(soc <= self._x[0], low, np.where(soc >= self._x[-1], high, inside))
+
     def slope(self, soc: float) -> float:
         """dOCV/dSoC in volts per unit SoC at ``soc`` (scalar)."""
         x = self._x

@@ -34,6 +34,16 @@ def _bracket(axis: list[float], x: float) -> tuple[int, float]:
     return i, (x - axis[i]) / (axis[i + 1] - axis[i])
 
 
+def _bracket_each(axis: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_bracket` at every element of ``x`` (``axis`` of two points or more)."""
+    i = np.clip(np.searchsorted(axis, x, side="right") - 1, 0, axis.size - 2)
+    w = (x - axis[i]) / (axis[i + 1] - axis[i])
+    low, high = x <= axis[0], x >= axis[-1]
+    i = np.where(low, 0, np.where(high, axis.size - 2, i))
+    w = np.where(low, 0.0, np.where(high, 1.0, w))
+    return i, w
+
+
 @dataclass(frozen=True)
 class ParamTable:
     """Values of one parameter on a (temperature x SoC) grid.
@@ -142,6 +152,38 @@ class ParamTable:
             row = rows[i] + wt * (rows[i + 1] - rows[i])
             self._blended[temperature_c] = row
         return fast_interp(soc, grid, row, None, None)
+
+    def at_each(self, soc: np.ndarray, temperature_c: np.ndarray) -> np.ndarray:
+        """:meth:`at` at every (``temperature_c[k]``, ``soc[k]``) pair, a NaN temperature as
+        ``None``: the same operations element by element (bracket, then ``v0 + w (v1 - v0)``
+        on each axis), so each value equals :meth:`at`'s to the last bit (a simulation over a
+        whole recording, ``identify.simulate_open_loop``, without a call per sample)."""
+        soc = np.asarray(soc, dtype=float)
+        grid = self._soc_arr
+        rows = np.asarray(self.values, dtype=float)  # (temperature, SoC)
+        if grid.size == 1:
+            j = np.zeros(soc.shape, dtype=np.intp)
+            if len(rows) == 1:
+                return rows[0][j]
+            return self._blend(rows[:, 0][:, None], j, temperature_c)
+        j, ws = _bracket_each(grid, soc)
+        if len(rows) == 1:
+            row = rows[0]
+            return np.where(ws == 0.0, row[j], row[j] + ws * (row[j + 1] - row[j]))
+        lo = rows[:, j]  # (temperature, k): each row at its SoC bracket
+        hi = rows[:, j + 1]
+        at_soc = np.where(ws == 0.0, lo, lo + ws * (hi - lo))
+        return self._blend(at_soc, np.arange(soc.size), temperature_c)
+
+    def _blend(self, at_soc: np.ndarray, k: np.ndarray, temperature_c: np.ndarray) -> np.ndarray:
+        """``at_soc[:, k]`` (every temperature row, already at its SoC) blended at each
+        sample's temperature as :meth:`at` does (NaN: 25 degC)."""
+        temps = np.asarray(temperature_c, dtype=float)
+        temps = np.where(np.isnan(temps), 25.0, temps)
+        i, wt = _bracket_each(np.array(self._t_list), temps)
+        v0 = at_soc[i, k]
+        v1 = at_soc[i + 1, k]
+        return v0 + wt * (v1 - v0)
 
     def as_array(self) -> np.ndarray:
         """The values as a ``(n_temperature, n_soc)`` array."""

@@ -390,6 +390,80 @@ class TheveninModel:
             v_rc = v_rc + xt[i]
         return v - v_rc
 
+    def voltage_along(
+        self,
+        soc: np.ndarray,
+        current_a: np.ndarray,
+        dt_s: np.ndarray,
+        temperature_c: np.ndarray,
+    ) -> np.ndarray:
+        """The terminal voltage (V) at every sample of a recording, from rest at sample 0, the
+        model's SoC at each sample given (``soc``; the branches and the lag follow).
+
+        Sample ``k`` (>= 1) is :meth:`surface_step` and :meth:`step` over ``dt_s[k]`` with
+        ``current_a[k - 1]`` from ``soc[k - 1]`` at ``temperature_c[k]``, then
+        :meth:`terminal_voltage` at ``soc[k]`` with ``current_a[k]``; NaN temperatures are
+        ``None``. The same operations as those methods, element by element (tables by
+        :meth:`ParamTable.at_each`, ``math.exp`` and ``math.asinh``): each value equals the
+        per-sample loop's to the last bit, with only the two first-order recursions (branch
+        voltages, lag modes) stepped sample by sample.
+        """
+        soc_from = np.concatenate([soc[:1], soc[:-1]])  # each step's start (sample 0: none)
+        i_from = np.concatenate([current_a[:1], current_a[:-1]])
+        dt = np.asarray(dt_s, dtype=float)
+        temps = np.asarray(temperature_c, dtype=float)
+        f = self._factor_each(temps)
+        v = self.ocv.ocv_each(soc - self._lag_along(soc_from, i_from, dt))
+        # series_drop_v at each sample
+        drop = current_a * self.params.r0_ohm.at_each(soc, temps)
+        if f is not None:
+            drop = drop * f  # x 1.0 inside the range: the same value as no factor
+        kin = self.params.kinetic
+        if kin is not None:
+            i0 = kin.i0_a.at_each(soc, temps)
+            if f is not None:
+                i0 = i0 / f
+            a_v = kin.a_v.at_each(soc, temps)
+            eta = a_v * _each(math.asinh, current_a / i0)
+            drop = np.where(current_a != 0.0, drop + eta, drop)
+        v = v - drop
+        if self.ocv_offset is not None:
+            v = v + self.ocv_offset.at_each(soc, temps)
+        for b in self.params.branches:
+            r = b.r_ohm.at_each(soc_from, temps)
+            tau = r * b.c_f.at_each(soc_from, temps)
+            if f is not None:
+                r = r * f
+            a = _each(math.exp, -dt / tau)
+            drive = i_from
+            if b.i_sat_a is not None:
+                sat = b.i_sat_a.at_each(soc_from, temps)
+                drive = np.where(i_from != 0.0, sat * _each(math.asinh, i_from / sat), i_from)
+            v = v - _first_order(a, r * (1.0 - a) * drive)
+        return v
+
+    def _factor_each(self, temperature_c: np.ndarray) -> np.ndarray | None:
+        """:meth:`resistance_factor` per sample (NaN: 1.0); None without Ea (always 1)."""
+        if not self._arrhenius:
+            return None
+        f = np.ones(temperature_c.size)
+        for t in np.unique(temperature_c[~np.isnan(temperature_c)]).tolist():
+            f[temperature_c == t] = self.resistance_factor(t)
+        return f
+
+    def _lag_along(self, soc_from: np.ndarray, i_from: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """The lag's ``z`` (sum of the modes, as ``sum()`` adds them) at every sample
+        (:meth:`SurfaceLag.step`); zeros without a lag."""
+        lag = self.params.surface_lag
+        z: np.ndarray = np.zeros(soc_from.size)
+        if lag is None:
+            return z
+        for g, tau, soc_max in zip(lag.gain_soc_per_a, lag.tau_s, lag.soc_max, strict=True):
+            a = _each(math.exp, -dt / tau)
+            drive = np.where(soc_from <= soc_max, g * i_from, 0.0)
+            z = z + _first_order(a, (1.0 - a) * drive)
+        return z
+
     def transition_jacobian(
         self, x: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
     ) -> np.ndarray:
@@ -447,6 +521,23 @@ class TheveninModel:
         x = np.zeros(self.dim_x)
         x[0] = soc
         return x
+
+
+def _each(fn, x: np.ndarray) -> np.ndarray:
+    """``fn`` (a ``math`` function) at every element: its rounding, not numpy's SIMD one."""
+    return np.fromiter(map(fn, x.tolist()), dtype=float, count=x.size)
+
+
+def _first_order(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``y[0] = 0``, ``y[k] = a[k] y[k - 1] + b[k]``: a branch's (or lag mode's) state from rest,
+    in the order :meth:`TheveninModel.step` adds."""
+    out = [0.0] * a.size
+    y = 0.0
+    for k, (ak, bk) in enumerate(zip(a.tolist(), b.tolist(), strict=True)):
+        if k:
+            y = ak * y + bk
+            out[k] = y
+    return np.array(out)
 
 
 def one_rc_equivalent(params: TheveninParams) -> TheveninParams:

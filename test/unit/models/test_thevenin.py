@@ -239,3 +239,77 @@ def test_the_hybrid_weighs_the_voltage_less_outside_the_identified_temperatures(
     hybrid._temp_c = -8.0  # 10 degC below the trusted 2 degC
     scale = hybrid.tuning["extrapolation_scale_c"]
     assert hybrid._measurement_variance(1.0) == pytest.approx(inside * (1 + (10 / scale) ** 2))
+
+
+def _per_sample_voltage(
+    model: TheveninModel, soc: np.ndarray, current: np.ndarray, dt: np.ndarray, temps: np.ndarray
+) -> np.ndarray:
+    """The per-sample loop ``voltage_along`` replaces: step, surface_step, terminal_voltage."""
+    x = model.rested_state(float(soc[0]))
+    z = model.surface_rest()
+    out = np.empty(soc.size)
+    for k in range(soc.size):
+        temp = None if np.isnan(temps[k]) else float(temps[k])
+        if k:
+            z = model.surface_step(z, float(current[k - 1]), float(dt[k]), float(x[0]))
+            x = model.step(x, float(current[k - 1]), float(dt[k]), temp)
+            x[0] = soc[k]
+        out[k] = model.terminal_voltage(x, float(current[k]), temp, sum(z))
+    return out
+
+
+@pytest.mark.parametrize("ea_j_per_mol", [0.0, 30_000.0])
+def test_the_voltage_along_a_recording_is_the_per_sample_loop_to_the_bit(
+    ea_j_per_mol: float,
+) -> None:
+    """``voltage_along`` (identify.simulate_open_loop's one pass) gives every sample the
+    per-sample loop's value exactly: the LFP file's model (tables at 5 and 25 degC, OCV shift,
+    kinetics, a saturating branch, two lag modes), with and without Arrhenius, on currents that
+    rest, charge and burst, temperatures inside, beyond and without a reading (NaN), steps of
+    0.1 s to an hour and a SoC that leaves the tables at both ends."""
+    from dataclasses import replace
+
+    from conftest import REPO_ROOT
+
+    from soc_estimator_ros.models.thevenin import TemperatureExtrapolation
+    from soc_estimator_ros.params import load_battery_params
+
+    battery = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+    ext = TemperatureExtrapolation(activation_energy_j_per_mol=ea_j_per_mol)
+    battery = replace(battery, thevenin=replace(battery.thevenin, extrapolation=ext))
+    model = battery.thevenin_model()
+    lag = battery.thevenin.surface_lag
+    assert battery.thevenin.kinetic is not None and lag is not None and lag.n_modes == 2
+    assert any(b.i_sat_a is not None for b in battery.thevenin.branches)
+    assert model.ocv_offset is not None
+    rng = np.random.default_rng(7)
+    n = 3000
+    current = rng.choice([0.0, 0.0, 1.2, -3.0, 18.0, 36.0], n) + rng.normal(0.0, 0.05, n)
+    current[rng.random(n) < 0.2] = 0.0
+    dt = rng.choice([0.1, 1.0, 60.0, 3600.0], n, p=[0.6, 0.3, 0.09, 0.01])
+    temps = rng.choice([-12.0, 2.5, 5.0, 17.3, 25.0, 41.0, np.nan], n)
+    soc = np.linspace(1.03, -0.03, n) + rng.normal(0.0, 0.002, n)
+    soc[:20] = 1.0  # the tables' top node exactly
+    got = model.voltage_along(soc, current, dt, temps)
+    assert np.array_equal(got, _per_sample_voltage(model, soc, current, dt, temps))
+
+
+def test_tables_and_the_ocv_at_each_sample_are_their_scalar_values_to_the_bit() -> None:
+    """``ParamTable.at_each`` and ``OcvCurve.ocv_each`` (``voltage_along``'s lookups) give each
+    element :meth:`at`'s and :meth:`ocv`'s value exactly: inside, on and beyond the grids, one
+    or several temperature rows, one SoC point, a NaN temperature (25 degC)."""
+    rng = np.random.default_rng(3)
+    soc = np.concatenate([rng.uniform(-0.2, 1.2, 500), [0.0, 0.2, 0.5, 1.0, 0.8]])
+    temps = rng.choice([-5.0, 0.0, 12.5, 25.0, 30.0, 50.0, np.nan], soc.size)
+    tables = [
+        ParamTable((0.1, 0.4, 0.9), ((1.0, 2.0, 5.0),)),
+        ParamTable((0.1, 0.4, 0.9), ((1.0, 2.0, 5.0), (3.0, 1.0, 0.5)), (0.0, 25.0)),
+        ParamTable((0.5,), ((0.7,),)),
+        ParamTable((0.5,), ((0.7,), (0.9,), (1.3,)), (0.0, 10.0, 40.0)),
+    ]
+    for table in tables:
+        each = table.at_each(soc, temps)
+        pairs = zip(soc.tolist(), temps.tolist(), strict=True)
+        scalar = [table.at(s, None if np.isnan(t) else t) for s, t in pairs]
+        assert np.array_equal(each, scalar), table
+    assert np.array_equal(OCV.ocv_each(soc), [OCV.ocv(float(s)) for s in soc])
