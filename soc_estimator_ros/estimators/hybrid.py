@@ -174,7 +174,7 @@ class Hybrid(T2rcUkf):
             return Guarded(float(self.x[i]), float(self.p[i, i]), 1.0)
         d = self.model.extrapolation_c(self._temp_c)
         if d != 0.0:
-            prior /= 1.0 + (d / self.tuning["extrapolation_scale_c"]) ** 2
+            prior *= math.exp(-0.5 * (d / self.tuning["extrapolation_scale_c"]) ** 2)
         u_var = max(float(self.p[i, i]), float(self.tuning["model_soc_std"]) ** 2)
         return guard(float(self.x[i]), u_var, self.count.soc, self.count.var, prior)
 
