@@ -1330,6 +1330,7 @@ def write_bag(
 
 def bag_readme(meta: dict) -> str:
     s = meta["sensors"]
+    adc_bits = round(math.log2(16.0 / s["voltage_step_v"]))
     return f"""# {meta["name"]}
 
 {meta["description"]}
@@ -1342,7 +1343,7 @@ def bag_readme(meta: dict) -> str:
   {meta["current_min_a"]} .. {meta["current_max_a"]} A (discharge positive).
 - Sensors: current gain error {s["current_gain"]:+.4f}, offset {s["current_offset_a"]:+.3f} A,
   noise {s["current_noise_a"]} A, quantized to {s["current_step_a"]} A; voltage gain error
-  {s["voltage_gain"]:+.5f}, noise {s["voltage_noise_v"] * 1000:.1f} mV, 12-bit ADC over 16 V
+  {s["voltage_gain"]:+.5f}, noise {s["voltage_noise_v"] * 1000:.1f} mV, {adc_bits}-bit ADC over 16 V
   ({s["voltage_step_v"] * 1000:.2f} mV steps); temperature noise {s["temperature_noise_c"]} degC.
 - Storage: rosbag2 {meta["storage"]}, {COMPRESSION_TEXT[meta["storage"]]}. Seed {meta["seed"]}.
 - `/battery/soc_reference` is the simulator's true SoC, not a measurement.
