@@ -1102,7 +1102,11 @@ def check_capacity(sc: Scenario, capacity_ah: float) -> float:
 def describe(sc: Scenario) -> str:
     start = "full" if sc.start_soc >= 1.0 else f"part-charged ({sc.start_soc:.0%})"
     rested = "rested" if sc.start_rested else "unrested"
-    dock = "no dock charge" if sc.dock_soc is None else f"dock CC-CV to full at {sc.dock_soc:.0%}"
+    dock = (
+        "no dock charge"
+        if sc.dock_soc is None
+        else f"dock CC-CV to full when the SoC falls to {sc.dock_soc:.0%} (or at the end)"
+    )
     return (
         f"Corpus mission ({sc.split}, seed {sc.seed}): {mission_profile(sc).name} profile, "
         f"starts {start} and {rested}, {len(sc.rests)} rest(s), "
