@@ -557,7 +557,7 @@ class SensorModel:
             current_offset_a=float(rng.uniform(*r.current_offset_a)),
             voltage_gain=float(rng.uniform(*r.voltage_gain)),
         )
-        if r.current_noise_a is None:  # the bundled bags: noise and steps as the defaults
+        if r.current_noise_a is None or r.voltage_noise_v is None:  # the bundled bags' noise
             return drawn
         return replace(
             drawn,
@@ -1059,7 +1059,7 @@ def simulate_mission(sc: Scenario, pack: Pack, capacity_ah: float) -> dict:
             else:
                 limit_s = 10.0 * max(1, round(duration_s / 10.0))
                 charge(sim, replace(dock_plan(sc, pack), cutoff_a=0.0, max_s=limit_s), rec, rate)
-        elif not docked and soc() <= sc.dock_soc:
+        elif sc.dock_soc is not None and not docked and soc() <= sc.dock_soc:
             charge(sim, dock_plan(sc, pack), rec, rate)
             docked = True
         elif soc() <= pack.soc_limit:

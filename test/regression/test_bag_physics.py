@@ -16,6 +16,7 @@ import sys
 from functools import cache
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 import pytest
@@ -50,7 +51,7 @@ def true_signals(bag: Path) -> tuple[np.ndarray, ...]:
     with AnyReader([bag], default_typestore=TYPESTORE) as reader:
         (conn,) = [c for c in reader.connections if c.topic == REFERENCE_TOPIC]
         raws = [raw for _, _, raw in reader.messages(connections=[conn])]
-        first = reader.deserialize(raws[0], conn.msgtype)
+        first: Any = reader.deserialize(raws[0], conn.msgtype)
     assert len({len(r) for r in raws}) == 1, "one message size per bag"
     data = np.frombuffer(b"".join(raws), dtype=np.uint8).reshape(len(raws), -1)
     name_len = int(data[0, 12:16].view("<u4")[0])
