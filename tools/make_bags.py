@@ -11,6 +11,28 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
         lfp_pulse_test lfp_pulse_test_5c lfp_slow_discharge lfp_rate_test lfp_rate_test_5c \
         lfp_load_test lfp_field_run_1_full_rest lfp_field_run_2_partial lfp_field_run_3_cold
         # a dev pack, its graphite diffusing 10x faster (docs/identification.md)
+    python tools/make_bags.py --corpus --out /work/corpus [--count 30] [--chemistry lfp sla] \
+        [--seeds 1001 1003] [--jobs 1]   # the scenario corpus (below), outside the repo
+
+Scenario corpus (``--corpus``; bags/README.md, "Scenario corpus", has the full table): seeded
+missions, one bag per mission in the bundled bags' format (``kind: mission``), with ``split``,
+``seed`` and every drawn value in bag.yaml. Seeds count from 1000 per chemistry (the chemistry
+is a second word of each random stream); **odd seeds are validation, even seeds tuning**.
+Per mission (:func:`draw_scenario`):
+
+* profile ``seeder`` 50 % / ``drive`` 30 % / ``idle`` 20 % (:data:`PROFILES`), with slopes 40 %;
+* 1, 2, 5, 10, 20 or 50 Hz; work plus rests 1-3 h, at most :data:`MAX_SAMPLES` samples;
+* start full 40 % or part-charged (limit + 20 % to 95 %), rested or not 50/50 (unrested: right
+  after an unrecorded dock charge or drive-down);
+* 0-2 rests of 0-2 h; 0-2 opportunity charges of 5-20 min at constant current; a dock CC-CV
+  charge to full in half of the missions at <= 10 Hz (:func:`charge`: a charger's control loop,
+  one solver step per 2-s step; LFP 14.4 V, SLA 13.0 V, as Sulzer2019 has no end-of-charge
+  rise), the charge current SLA 0.15-0.3 C, LFP 0.2-1 C;
+* ambient -10 to 40 degC; LFP with the lumped thermal model (the recorded temperature is the
+  cell's), SLA isothermal at the ambient (its lumped model was 7x slower a step);
+* sensors within :data:`CORPUS_SENSORS`; pack capacity x0.95-1.05 (electrode width) and
+  resistance x0.85-1.15 (a series resistance, ``(x - 1) * Pack.resistance_ohm``); the
+  reference SoC is over that pack's own measured reference capacity.
 
 Packs (bags/README.md): 12 V 5 Ah SLA = 6 cells of PyBaMM's full lead-acid model
 (``lead_acid.Full``, Sulzer2019: 21.75 Ah at C/20) with the current scaled by 21.75/5;
@@ -24,16 +46,22 @@ Simulator traps found and avoided (checked on every bag before it is written):
   its algebraic states at every step (the voltage answers in the same sample);
 * the leading-order lead-acid model (LOQS) freezes after pulses above about 0.4C: the full
   model is used;
-* a solution is sampled by time (``t_eval`` at the sample stamps), never by solver step.
+* a solution is sampled by time (``t_eval`` at the sample stamps), never by solver step;
+* every mission passes :func:`check_recording` before it is written (finite, SoC within [0, 1],
+  the voltage answering every current step in the same sample, rest voltages in SoC order);
+  a corpus mission that fails is reported with its seed and skipped.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import shutil
+import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +97,23 @@ class Pack:
     #: Dev only (``--graphite-diffusivity-x``): the LFP cell's graphite particle diffusivity
     #: times this, to see what the graphite's slow diffusion does to the identified model.
     graphite_diffusivity_x: float = 1.0
+    #: Corpus pack spread (``--corpus``): the cell's electrode width (so its area, capacity and
+    #: heat capacity) times this; the bundled packs have 1.
+    capacity_x: float = 1.0
+    #: Corpus pack spread: a series (contact) resistance added at the pack terminals, negative
+    #: for a pack below the bundled one's resistance; the bundled packs have 0.
+    series_resistance_ohm: float = 0.0
+    #: PyBaMM's lumped thermal model (LFP corpus missions): the cell warms under load.
+    thermal: bool = False
+    #: The dock's CC-CV charger: its constant voltage (pack; LFP 3.60 V per cell, as
+    #: runtime/charging.py expects; SLA below, Sulzer2019 has no end-of-charge rise) and the
+    #: resistance its loop assumes (above the pack's over one control step: no overshoot).
+    charge_voltage_v: float = 14.4
+    charge_loop_ohm: float = 0.3
+    #: The pack's resistance the corpus spread is a fraction of: the voltage drop 5 s into a
+    #: 1 C discharge step from rest at 50 % SoC and 25 degC, per ampere (measured on this
+    #: simulator, ``pack_resistance_ohm``).
+    resistance_ohm: float = 0.0
 
     @property
     def current_scale(self) -> float:
@@ -76,11 +121,41 @@ class Pack:
         return self.cell_capacity_ah / self.pack_capacity_ah
 
 
+#: The simulated SLA pack's charge voltage: Sulzer2019's full model has no end-of-charge
+#: voltage rise (no gassing, no sulphate running out), so at the real pack's 14.4 V it would
+#: charge on to twice its capacity; under the C/20 cut-off it reads 13.00 V at 98 % and
+#: 13.02 V at 100 %, so the CC-CV charge holds 13.0 V and ends near full.
+SLA_CHARGE_VOLTAGE_V = 13.0
+
 PACKS = {
     # Sulzer2019's "17 Ah" cell delivers 21.75 Ah at C/20 to 1.75 V; SLA packs are rated at
     # C/20, so the current is scaled by 21.75/5 to make the pack a 5 Ah (C/20) pack.
-    "sla": Pack("sla", 6, 21.75, 5.0, 10.5, 0.40, TECH["sla"], "AJC-12V5AH-SIM"),
-    "lfp": Pack("lfp", 4, 2.3, 6.0, 10.0, 0.20, TECH["lfp"], "ROYPOW-12V6AH-SIM"),
+    # resistance_ohm: measured here (1 C, 5 s, 50 %, 25 degC): 0.139 and 0.0465 ohm.
+    "sla": Pack(
+        "sla",
+        6,
+        21.75,
+        5.0,
+        10.5,
+        0.40,
+        TECH["sla"],
+        "AJC-12V5AH-SIM",
+        charge_loop_ohm=0.4,
+        resistance_ohm=0.139,
+        charge_voltage_v=SLA_CHARGE_VOLTAGE_V,
+    ),
+    "lfp": Pack(
+        "lfp",
+        4,
+        2.3,
+        6.0,
+        10.0,
+        0.20,
+        TECH["lfp"],
+        "ROYPOW-12V6AH-SIM",
+        charge_loop_ohm=0.15,
+        resistance_ohm=0.0465,
+    ),
 }
 
 
@@ -92,6 +167,8 @@ class PackSim:
 
         pybamm.set_logging_level("ERROR")
         self.pack = pack
+        if pack.thermal and pack.chemistry != "lfp":
+            raise ValueError("the lumped thermal model is used for the LFP pack only")
         if pack.chemistry == "sla":
             model = pybamm.lead_acid.Full()
             pv = pybamm.ParameterValues("Sulzer2019")
@@ -100,8 +177,11 @@ class PackSim:
             pv["Upper voltage cut-off [V]"] = 2.7
             pv["Lower voltage cut-off [V]"] = 1.5
         else:
-            model = pybamm.lithium_ion.SPMe()
+            options = {"thermal": "lumped"} if pack.thermal else {}
+            model = pybamm.lithium_ion.SPMe(options=options)
             pv = pybamm.ParameterValues("Prada2013")
+            if pack.thermal:
+                pv.update(lumped_thermal_parameters(pybamm), check_already_exists=False)
             if pack.graphite_diffusivity_x != 1.0:
                 key = "Negative particle diffusivity [m2.s-1]"
                 pv[key] = pv[key] * pack.graphite_diffusivity_x
@@ -111,6 +191,14 @@ class PackSim:
             # pack sags below 2.0 V/cell on a 38 A peak; the pack cut-off is this tool's job.
             pv["Upper voltage cut-off [V]"] = 3.8
             pv["Lower voltage cut-off [V]"] = 1.5
+        if pack.capacity_x != 1.0:  # area: capacity and every per-area quantity
+            for key in (
+                "Electrode width [m]",
+                "Cell volume [m3]",
+                "Cell cooling surface area [m2]",
+            ):
+                if key in pv.keys():
+                    pv[key] = pv[key] * pack.capacity_x
         pv["Ambient temperature [K]"] = 273.15 + temp_c
         pv["Initial temperature [K]"] = 273.15 + temp_c
         pv["Current function [A]"] = "[input]"
@@ -121,12 +209,14 @@ class PackSim:
         self.t_s = 0.0
         self.discharged_ah = 0.0
         self.last_v = math.nan
+        self.last_current_a = 0.0
 
     def segment(
         self, duration_s: float, current_a: float, sample_times: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Hold ``current_a`` (pack, discharge +) for ``duration_s``; sample the voltage and
-        the discharged charge at ``sample_times`` (absolute, within [t, t + duration))."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Hold ``current_a`` (pack, discharge +) for ``duration_s``; sample the terminal
+        voltage, the discharged charge and the cell temperature (degC; the ambient when
+        isothermal) at ``sample_times`` (absolute, within [t, t + duration))."""
         rel = np.clip(np.round(sample_times - self.t_s, 9), 0.0, duration_s)
         t_eval = np.unique(np.concatenate([[0.0], rel, [duration_s]]))
         sol = self.sim.step(
@@ -142,13 +232,36 @@ class PackSim:
                 f"{self.pack.chemistry}: solver stopped at {t_rel[-1]:.1f} of {duration_s:.1f} s"
             )
         v = last["Voltage [V]"].entries * self.pack.cells
+        if self.pack.series_resistance_ohm != 0.0:
+            v = v - current_a * self.pack.series_resistance_ohm
         q = last["Discharge capacity [A.h]"].entries / self.pack.current_scale
         v_s = np.interp(rel, t_rel, v)
         q_s = np.interp(rel, t_rel, q)
+        if self.pack.thermal:
+            temp = last["X-averaged cell temperature [K]"].entries - 273.15
+            temp_s = np.interp(rel, t_rel, temp)
+        else:
+            temp_s = np.full(rel.size, self.temp_c)
         self.t_s += duration_s
         self.discharged_ah = float(q[-1])
         self.last_v = float(v[-1])
-        return v_s, q_s
+        self.last_current_a = float(current_a)
+        return v_s, q_s, temp_s
+
+
+def lumped_thermal_parameters(pybamm) -> dict[str, float]:
+    """What Prada2013 lacks for PyBaMM's lumped thermal model: layer densities, heat capacities
+    and current collectors from Marquis2019 (a generic Li-ion cell), the geometry of the A123
+    26650 (65 mm x 26 mm: 34.5 cm3, 63.7 cm2 of surface) and 10 W/m2/K to the air inside the
+    pack's enclosure (natural convection)."""
+    donor = pybamm.ParameterValues("Marquis2019")
+    keys = [k for k in donor.keys() if "current collector" in k or k.endswith("[J.kg-1.K-1]")]
+    keys += [k for k in donor.keys() if k.endswith("density [kg.m-3]")]
+    values = {k: donor[k] for k in keys}
+    values["Cell volume [m3]"] = math.pi * 0.013**2 * 0.065
+    values["Cell cooling surface area [m2]"] = 2 * math.pi * 0.013 * 0.065 + 2 * math.pi * 0.013**2
+    values["Total heat transfer coefficient [W.m-2.K-1]"] = 10.0
+    return values
 
 
 @dataclass
@@ -159,18 +272,24 @@ class Recording:
     current_a: list[np.ndarray] = field(default_factory=list)
     voltage_v: list[np.ndarray] = field(default_factory=list)
     discharged_ah: list[np.ndarray] = field(default_factory=list)
+    temperature_c: list[np.ndarray] = field(default_factory=list)
 
-    def add(self, t, i, v, q) -> None:
+    def add(self, t, i, v, q, temp=None) -> None:
         self.t_s.append(t)
         self.current_a.append(np.full(t.size, float(i)))
         self.voltage_v.append(v)
         self.discharged_ah.append(q)
+        if temp is not None:
+            self.temperature_c.append(temp)
 
     def arrays(self):
         return tuple(
             np.concatenate(x)
             for x in (self.t_s, self.current_a, self.voltage_v, self.discharged_ah)
         )
+
+    def temperatures(self) -> np.ndarray:
+        return np.concatenate(self.temperature_c)
 
 
 def run_segments(sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, tail_rate_hz=None):
@@ -192,11 +311,58 @@ def run_segments(sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, ta
             )
             times = times[keep]
         times = np.round(times, 6)
-        v, q = sim.segment(duration, current, times)
-        rec.add(times, current, v, q)
+        v, q, temp = sim.segment(duration, current, times)
+        rec.add(times, current, v, q, temp)
 
 
 # -- profiles -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ChargePlan:
+    """A charge at the dock: constant current ``current_a`` (magnitude) until the pack reaches
+    ``voltage_v``, then that voltage held (the current tapering) until ``cutoff_a``; or, for an
+    opportunity charge, whatever of that fits in ``max_s``."""
+
+    current_a: float
+    voltage_v: float
+    cutoff_a: float = 0.0
+    max_s: float = math.inf
+
+
+#: The charger's control loop: a new current every CHARGE_STEP_S; CHARGE_COARSE_S steps while
+#: the voltage, rising as fast as over the last step, stays below the charge voltage by more
+#: than CHARGE_NEAR_V for three coarse steps (the CC phase far from the CV switch).
+CHARGE_STEP_S = 2.0
+CHARGE_COARSE_S = 30.0
+CHARGE_NEAR_V = 0.05
+
+
+def charge(sim: PackSim, plan: ChargePlan, rec: Recording | None, rate_hz: float) -> float:
+    """Charge per ``plan`` in constant-current steps of a charger's control loop (each a
+    separate solver step, as :func:`run_segments`): the current follows
+    ``I += (V_cv - V) / charge_loop_ohm``, capped at the CC current, so the voltage holds at
+    ``V_cv`` and the current tapers. Returns the time charged (s)."""
+    magnitude = plan.current_a
+    elapsed = 0.0
+    reached_cv = False
+    rise_v_per_s = math.inf  # unknown before the first charge step
+    while elapsed < plan.max_s - 1e-9:
+        error_v = plan.voltage_v - sim.last_v
+        far = error_v > max(CHARGE_NEAR_V, 3.0 * CHARGE_COARSE_S * rise_v_per_s)
+        step = min(CHARGE_COARSE_S if far else CHARGE_STEP_S, plan.max_s - elapsed)
+        v_before = sim.last_v
+        run_segments(sim, [(step, -magnitude)], rec, rate_hz)
+        elapsed += step
+        rise_v_per_s = max(0.0, sim.last_v - v_before) / step if elapsed > step else math.inf
+        error_v = plan.voltage_v - sim.last_v
+        reached_cv = reached_cv or error_v <= 0.0
+        magnitude = float(
+            np.clip(magnitude + error_v / sim.pack.charge_loop_ohm, 0.0, plan.current_a)
+        )
+        if reached_cv and magnitude <= plan.cutoff_a:
+            break
+    return elapsed
+
+
 def step_segments(current_a: float, step_s: float, n_steps: int) -> list[tuple[float, float]]:
     """A 10-min rest, then ``n_steps`` steps of ``current_a`` for ``step_s`` with 1-h rests."""
     segs = [(600.0, 0.0)]
@@ -254,18 +420,54 @@ def load_test_segments(pack: Pack) -> list[tuple[float, float]]:
     return step_segments(LOAD_TEST_C * pack.pack_capacity_ah, 0.1 * 3600.0 / LOAD_TEST_C, 7)
 
 
-def mission(rng: np.random.Generator, pack: Pack):
-    """Endless seeded seeder-robot mission: yields (duration_s, pack current A) segments.
+#: What the robot does, one activity at a time (:func:`mission`).
+ACTIVITIES = ("forward", "backward", "uphill", "downhill", "turn", "idle")
+#: Electronics always on while the robot works (A); a parked robot's bridge alone draws REST_A.
+ELECTRONICS_A = 0.35
+REST_A = 0.05
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A mission profile: how often each of :data:`ACTIVITIES` is drawn (probabilities in that
+    order) and whether the seeder's actuators pulse while driving forward."""
+
+    name: str
+    p: tuple[float, ...]
+    actuators: bool
+
+    def with_slopes(self) -> Profile:
+        """Half of the flat forward and backward driving moved to slopes (uphill ~18 A, the
+        heavy segments; downhill with regenerative braking), half each."""
+        fwd, bwd, up, down, turn, idle = self.p
+        flat = 0.5 * (fwd + bwd)
+        return Profile(
+            f"{self.name}+slopes",
+            (0.5 * fwd, 0.5 * bwd, up + 0.5 * flat, down + 0.5 * flat, turn, idle),
+            self.actuators,
+        )
+
+
+PROFILES = {
+    # The bundled field runs' mission (the seeder sowing a field).
+    "seeder": Profile("seeder", (0.30, 0.12, 0.10, 0.10, 0.08, 0.30), True),
+    # Transport between fields: mostly forward, few stops, no seeding.
+    "drive": Profile("drive", (0.55, 0.05, 0.05, 0.05, 0.15, 0.15), False),
+    # Waiting at the field's edge: electronics on, a few short moves.
+    "idle": Profile("idle", (0.08, 0.02, 0.02, 0.02, 0.03, 0.83), False),
+}
+
+
+def mission(rng: np.random.Generator, pack: Pack, profile: Profile = PROFILES["seeder"]):
+    """Endless seeded robot mission: yields (duration_s, pack current A) segments.
 
     Two drive motors (seed 000 Table 2: Ampflow E30-150, 514 W peak), electronics always on,
-    seeder linear actuators, flat and sloped ground forward and backward, idle stops.
+    seeder linear actuators, flat and sloped ground forward and backward, idle stops; how often
+    each is drawn is the ``profile``'s (the bundled field runs: ``seeder``).
     """
-    electronics = 0.35
+    electronics = ELECTRONICS_A
     while True:
-        activity = rng.choice(
-            ["forward", "backward", "uphill", "downhill", "turn", "idle"],
-            p=[0.30, 0.12, 0.10, 0.10, 0.08, 0.30],
-        )
+        activity = rng.choice(list(ACTIVITIES), p=list(profile.p))
         if activity == "idle":  # seeding stops, operator checks: electronics only
             yield float(rng.uniform(30, 240)), electronics
             continue
@@ -292,7 +494,7 @@ def mission(rng: np.random.Generator, pack: Pack):
             level = float(np.clip(rng.normal(mean, spread), 0.5, 38.0))
             if activity == "downhill" and rng.random() < 0.3:
                 level = -float(rng.uniform(1.0, 4.0))  # regenerative braking
-            if activity == "forward" and rng.random() < 0.15:
+            if activity == "forward" and profile.actuators and rng.random() < 0.15:
                 yield seg, electronics + level + 3.0  # seeder actuators extend
                 continue
             yield seg, electronics + level
@@ -300,6 +502,36 @@ def mission(rng: np.random.Generator, pack: Pack):
 
 def quantize(x: np.ndarray, step: float) -> np.ndarray:
     return np.round(x / step) * step
+
+
+@dataclass(frozen=True)
+class SensorRanges:
+    """Where :meth:`SensorModel.draw` draws a bag's sensor errors: uniform within the
+    ``(low, high)`` pairs, one of the choices for the steps; without noise ranges the noise
+    and steps are the defaults of :class:`SensorModel`."""
+
+    current_gain: tuple[float, float]
+    current_offset_a: tuple[float, float]
+    voltage_gain: tuple[float, float]
+    current_noise_a: tuple[float, float] | None = None
+    current_step_a: tuple[float, ...] = ()
+    voltage_noise_v: tuple[float, float] | None = None
+    voltage_adc_bits: tuple[int, ...] = ()  # over 16 V
+
+
+#: The bundled bags' sensors (bags/README.md, "Sensors as on the robot").
+BUNDLED_SENSORS = SensorRanges((-0.008, 0.008), (-0.03, 0.03), (-5e-4, 5e-4))
+#: The corpus missions' (bags/README.md, "Scenario corpus"): Hall sensors from a calibrated
+#: LEM to an uncalibrated ACS712, 10- to 16-bit voltage ADCs.
+CORPUS_SENSORS = SensorRanges(
+    current_gain=(-0.015, 0.015),
+    current_offset_a=(-0.06, 0.06),
+    voltage_gain=(-1e-3, 1e-3),
+    current_noise_a=(0.01, 0.08),
+    current_step_a=(0.01, 0.02, 0.04, 0.08),
+    voltage_noise_v=(0.001, 0.005),
+    voltage_adc_bits=(10, 12, 16),
+)
 
 
 @dataclass(frozen=True)
@@ -317,11 +549,22 @@ class SensorModel:
     temperature_step_c: float = 0.1
 
     @classmethod
-    def draw(cls, rng: np.random.Generator) -> SensorModel:
-        return cls(
-            current_gain=float(rng.uniform(-0.008, 0.008)),
-            current_offset_a=float(rng.uniform(-0.03, 0.03)),
-            voltage_gain=float(rng.uniform(-5e-4, 5e-4)),
+    def draw(cls, rng: np.random.Generator, ranges: SensorRanges | None = None) -> SensorModel:
+        """Errors drawn within ``ranges`` (the bundled bags': :data:`BUNDLED_SENSORS`)."""
+        r = BUNDLED_SENSORS if ranges is None else ranges
+        drawn = cls(
+            current_gain=float(rng.uniform(*r.current_gain)),
+            current_offset_a=float(rng.uniform(*r.current_offset_a)),
+            voltage_gain=float(rng.uniform(*r.voltage_gain)),
+        )
+        if r.current_noise_a is None or r.voltage_noise_v is None:  # the bundled bags' noise
+            return drawn
+        return replace(
+            drawn,
+            current_noise_a=float(rng.uniform(*r.current_noise_a)),
+            current_step_a=float(rng.choice(r.current_step_a)),
+            voltage_noise_v=float(rng.uniform(*r.voltage_noise_v)),
+            voltage_step_v=16.0 / 2.0 ** int(rng.choice(r.voltage_adc_bits)),
         )
 
     def measure(self, rng, current_a, voltage_v, temperature_c):
@@ -340,21 +583,97 @@ class SensorModel:
 
 
 # -- checks ---------------------------------------------------------------------------------
-def check_recording(name: str, t, i, v, soc, capacity_ah, rest_ends: list[int] | None) -> None:
-    """Refuse to write a bag whose simulated signals are not physical (module docstring)."""
-    if not np.all(np.diff(t) > 0):
-        raise RuntimeError(f"{name}: stamps not strictly increasing")
+#: A current step the voltage must answer in the same sample (the smallest designed step is
+#: C/20, 0.25 A).
+STEP_MIN_A = 0.2
+#: A rest: the true current within this (the bridge alone, 50 mA) for at least REST_PROBE_S.
+REST_MAX_A = 0.1
+#: Rests are compared like with like: the voltage this long into each rest.
+REST_PROBE_S = 300.0
+#: Rest voltages are ordered only between rests this far apart in SoC (the LFP plateau falls
+#: by a few mV over 5 %, less than what an unfinished relaxation leaves).
+REST_MIN_DSOC = 0.1
+
+
+def voltage_step_failures(i: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Indices ``k`` of the current steps ``i[k] -> i[k + 1]`` (|dI| > STEP_MIN_A) that do not
+    move the voltage in the same sample, the opposite way (a frozen solver).
+
+    The move is taken beyond the voltage's drift over the sample before, at the same current:
+    at 1-2 Hz under a heavy load the voltage falls by ~10 mV a sample, more than a 0.3 A step
+    moves it, and a frozen solver would show just that drift. A step right after another
+    (a one-sample segment, at 1-2 Hz) has no such sample and is left out: a cold pack's
+    voltage moves by as much over the second of a 27 A start-up as a 7 A step moves it."""
     di = np.diff(i)
     dv = np.diff(v)
-    steps = np.flatnonzero(np.abs(di) > 0.2)  # the smallest designed step: C/20 (0.25 A)
-    # Every current step moves the voltage in the same sample, the opposite way.
-    bad = [k for k in steps if not (dv[k] * di[k] < 0 and abs(dv[k]) > 0.002 * abs(di[k]))]
-    if bad:
-        k = bad[0]
+    steps = np.flatnonzero(np.abs(di) > STEP_MIN_A)
+    steps = steps[(steps > 0) & (di[np.maximum(steps - 1, 0)] == 0.0)]
+    answer = dv[steps] - dv[steps - 1]
+    ok = (answer * di[steps] < 0) & (np.abs(answer) > 0.002 * np.abs(di[steps]))
+    return steps[~ok]
+
+
+def rest_probes(t: np.ndarray, i: np.ndarray, v: np.ndarray, soc: np.ndarray) -> list[int]:
+    """The sample REST_PROBE_S into each rest that follows a discharge (the mean current over
+    the minute before it positive): rests after a charge relax from above and are left out."""
+    resting = np.abs(i) <= REST_MAX_A
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], resting.astype(np.int8), [0]])))
+    probes = []
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        k = int(np.searchsorted(t, t[start] + REST_PROBE_S))
+        if k >= stop:  # shorter than REST_PROBE_S
+            continue
+        before = (t >= t[start] - 60.0) & (t < t[start])
+        if start == 0 or not before.any() or np.mean(i[before]) <= 0.0:
+            continue
+        probes.append(k)
+    return probes
+
+
+def rest_order_failures(
+    t: np.ndarray, i: np.ndarray, v: np.ndarray, soc: np.ndarray
+) -> list[tuple[float, float]]:
+    """Pairs of rests (their SoCs) at least REST_MIN_DSOC apart whose probed voltages
+    (:func:`rest_probes`) are not in the order of their SoCs."""
+    probes = rest_probes(t, i, v, soc)
+    bad = []
+    for a in probes:
+        for b in probes:
+            if soc[a] - soc[b] >= REST_MIN_DSOC and not v[a] > v[b]:
+                bad.append((round(float(soc[a]), 3), round(float(soc[b]), 3)))
+    return bad
+
+
+def check_recording(
+    name: str,
+    t,
+    i,
+    v,
+    soc,
+    capacity_ah,
+    rest_ends: list[int] | None,
+    sample_period_s: float | None = None,
+    temp=None,
+) -> None:
+    """Refuse to write a bag whose simulated signals are not physical (module docstring)."""
+    signals = [t, i, v, soc] + ([] if temp is None else [temp])
+    if not all(np.all(np.isfinite(x)) for x in signals):
+        raise RuntimeError(f"{name}: non-finite values")
+    if not np.all(np.diff(t) > 0):
+        raise RuntimeError(f"{name}: stamps not strictly increasing")
+    if sample_period_s is not None and not np.allclose(np.diff(t), sample_period_s, atol=1e-6):
+        raise RuntimeError(f"{name}: samples off the {sample_period_s} s grid")
+    if np.min(soc) < 0.0 or np.max(soc) > 1.0:
+        raise RuntimeError(f"{name}: reference SoC {np.min(soc):.4f} .. {np.max(soc):.4f}")
+    bad = voltage_step_failures(i, v)
+    if bad.size:
+        k = int(bad[0])
         raise RuntimeError(
-            f"{name}: {len(bad)} of {steps.size} current steps do not move the voltage in the "
-            f"same sample (first at t={t[k + 1]:.1f} s: dI={di[k]:+.2f} A, dV={dv[k]:+.4f} V)"
+            f"{name}: {bad.size} current steps do not move the voltage in the same sample "
+            f"(first at t={t[k + 1]:.1f} s: dI={i[k + 1] - i[k]:+.2f} A, "
+            f"dV={v[k + 1] - v[k]:+.4f} V)"
         )
+    dv = np.diff(v)
     loaded = np.abs(i[1:]) > 1.0
     frozen = loaded & (np.abs(dv) == 0.0)
     if np.mean(frozen[loaded]) > 0.5 if loaded.any() else False:
@@ -369,6 +688,12 @@ def check_recording(name: str, t, i, v, soc, capacity_ah, rest_ends: list[int] |
         rest_v = v[rest_ends]
         if not np.all(np.diff(rest_v) < 0):
             raise RuntimeError(f"{name}: rest voltages do not fall with SoC: {rest_v}")
+    disordered = rest_order_failures(t, i, v, soc)
+    if disordered:
+        raise RuntimeError(
+            f"{name}: rest voltages out of SoC order (SoC pairs {disordered[:3]}, "
+            f"{REST_PROBE_S:.0f} s into each rest)"
+        )
 
 
 # -- bags -----------------------------------------------------------------------------------
@@ -544,6 +869,286 @@ DEV_SPECS = [
 ]
 
 
+# -- the scenario corpus (--corpus) -----------------------------------------------------------
+#: Corpus seeds start here; odd seeds are validation missions, even seeds tuning missions.
+CORPUS_FIRST_SEED = 1000
+#: The second word of every corpus random stream: one chemistry's seed 1001 is not another's.
+CHEMISTRY_STREAM = {"sla": 1, "lfp": 2}
+SAMPLE_RATES_HZ = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
+#: A mission's work and rests stay within this many samples (50 Hz: one hour).
+MAX_SAMPLES = 180_000
+#: Dock charges (hours long) only in missions logged at this rate or slower.
+DOCK_MAX_RATE_HZ = 10.0
+#: The charger's taper cut-off (C of the nominal capacity; runtime/charging.py's FULL taper).
+DOCK_CUTOFF_C = 0.05
+#: Rested starts park this long after their unrecorded pre-phase.
+PARK_S = 7200.0
+#: Charge currents (C of the nominal capacity) a dock or an opportunity charger gives.
+CHARGE_C = {"sla": (0.15, 0.3), "lfp": (0.2, 1.0)}
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One corpus mission, every value drawn from its seed (:func:`draw_scenario`)."""
+
+    chemistry: str
+    seed: int
+    profile: str
+    slopes: bool
+    sample_rate_hz: float
+    ambient_c: float
+    capacity_x: float
+    resistance_x: float
+    start_soc: float
+    start_rested: bool
+    work_s: float  # driving, working and idle stops (the profile), rests and charges apart
+    rests: tuple[tuple[float, float], ...]  # (at this fraction of the work, duration s)
+    opportunity_charges: tuple[tuple[float, float], ...]  # (fraction of the work, duration s)
+    charge_c: float
+    dock_soc: float | None  # the SoC the robot docks at (CC-CV to full); None: no dock charge
+    sensors: SensorModel
+
+    @property
+    def split(self) -> str:
+        return "validation" if self.seed % 2 else "tuning"
+
+    @property
+    def name(self) -> str:
+        return f"{self.chemistry}_{self.split}_{self.seed}"
+
+    def stream(self, word: int) -> np.random.Generator:
+        """An independent random stream of this mission (1 work, 2 pre-phase, 3 sensors)."""
+        return np.random.default_rng([self.seed, CHEMISTRY_STREAM[self.chemistry], word])
+
+    def values(self) -> dict:
+        """Every drawn value, for bag.yaml (the sensors have their own entry)."""
+        out = {k: v for k, v in self.__dict__.items() if k != "sensors"}
+        out["rests"] = [[round(a, 4), round(d, 1)] for a, d in self.rests]
+        out["opportunity_charges"] = [
+            [round(a, 4), round(d, 1)] for a, d in self.opportunity_charges
+        ]
+        return {k: round(v, 6) if isinstance(v, float) else v for k, v in out.items()}
+
+
+def draw_scenario(chemistry: str, seed: int) -> Scenario:
+    """Draw one mission from the corpus distribution (bags/README.md, "Scenario corpus").
+
+    Every value is drawn whether it is used or not, so each keeps its meaning across seeds.
+    """
+    pack = PACKS[chemistry]
+    rng = np.random.default_rng([seed, CHEMISTRY_STREAM[chemistry], 0])
+    profile = str(rng.choice(list(PROFILES), p=[0.5, 0.3, 0.2]))
+    slopes = bool(rng.random() < 0.4)
+    rate_hz = float(rng.choice(SAMPLE_RATES_HZ))
+    ambient_c = round(float(rng.uniform(-10.0, 40.0)), 1)
+    capacity_x = round(float(rng.uniform(0.95, 1.05)), 4)
+    resistance_x = round(float(rng.uniform(0.85, 1.15)), 4)
+    full = bool(rng.random() < 0.4)
+    part_soc = round(float(rng.uniform(pack.soc_limit + 0.2, 0.95)), 3)
+    rested = bool(rng.random() < 0.5)
+    recorded_s = min(float(rng.uniform(1.0, 3.0)) * 3600.0, MAX_SAMPLES / rate_hz)
+    n_rests = int(rng.choice([0, 1, 2], p=[0.3, 0.4, 0.3]))
+    rest_max_s = min(7200.0, recorded_s / 3.0)
+    rests = tuple(
+        sorted(
+            (float(rng.uniform(0.1, 0.9)), float(rng.uniform(0.0, rest_max_s))) for _ in range(2)
+        )
+    )[:n_rests]
+    n_opportunity = int(rng.choice([0, 1, 2], p=[0.5, 0.3, 0.2]))
+    opportunity = tuple(
+        sorted(
+            (float(rng.uniform(0.2, 0.9)), 60.0 * float(rng.uniform(5.0, 20.0))) for _ in range(2)
+        )
+    )[:n_opportunity]
+    charge_c = round(float(rng.uniform(*CHARGE_C[chemistry])), 3)
+    docks = bool(rng.random() < 0.5) and rate_hz <= DOCK_MAX_RATE_HZ
+    dock_soc = round(float(rng.uniform(pack.soc_limit + 0.02, pack.soc_limit + 0.2)), 3)
+    sensors = SensorModel.draw(rng, CORPUS_SENSORS)
+    return Scenario(
+        chemistry=chemistry,
+        seed=seed,
+        profile=profile,
+        slopes=slopes,
+        sample_rate_hz=rate_hz,
+        ambient_c=ambient_c,
+        capacity_x=capacity_x,
+        resistance_x=resistance_x,
+        start_soc=1.0 if full else part_soc,
+        start_rested=rested,
+        work_s=round(recorded_s - sum(d for _, d in rests), 1),
+        rests=rests,
+        opportunity_charges=opportunity,
+        charge_c=charge_c,
+        dock_soc=dock_soc if docks else None,
+        sensors=sensors,
+    )
+
+
+def scenario_pack(sc: Scenario) -> Pack:
+    """The bundled pack of ``sc.chemistry`` with the mission's spread (and, LFP, warming)."""
+    base = PACKS[sc.chemistry]
+    return replace(
+        base,
+        capacity_x=sc.capacity_x,
+        series_resistance_ohm=(sc.resistance_x - 1.0) * base.resistance_ohm,
+        thermal=sc.chemistry == "lfp",
+    )
+
+
+def on_grid(duration_s: float, rate_hz: float) -> float:
+    """``duration_s`` as a whole number of sample periods (at least one)."""
+    return max(1, round(duration_s * rate_hz)) / rate_hz
+
+
+def discharge_to(sim: PackSim, soc, target: float, segments) -> None:
+    """Unrecorded: run ``segments`` ((duration_s, current_a) pairs) until ``soc() <= target``."""
+    while soc() > target:
+        run_segments(sim, [next(segments)], None)
+
+
+def dock_plan(sc: Scenario, pack: Pack) -> ChargePlan:
+    """The dock's CC-CV charge to full."""
+    c = pack.pack_capacity_ah
+    return ChargePlan(sc.charge_c * c, pack.charge_voltage_v, DOCK_CUTOFF_C * c)
+
+
+def start_phase(sim: PackSim, sc: Scenario, pack: Pack, soc) -> None:
+    """Bring the pack to the mission's start, unrecorded: full and rested is the initial state;
+    full and unrested just ended a dock charge (from 80 %, at C/5 down); part-charged starts
+    were driven down from full (rested: at C/5, then parked PARK_S; unrested: by the mission's
+    own profile, the recording starting at once)."""
+    c5 = itertools.repeat((30.0, pack.pack_capacity_ah / 5.0))
+    if sc.start_soc >= 1.0:
+        if not sc.start_rested:
+            discharge_to(sim, soc, 0.8, c5)
+            charge(sim, dock_plan(sc, pack), None, 1.0)
+        return
+    if sc.start_rested:
+        discharge_to(sim, soc, sc.start_soc, c5)
+        run_segments(sim, [(PARK_S, 0.0)], None)
+    else:
+        discharge_to(sim, soc, sc.start_soc, mission(sc.stream(2), pack, mission_profile(sc)))
+
+
+def mission_profile(sc: Scenario) -> Profile:
+    profile = PROFILES[sc.profile]
+    return profile.with_slopes() if sc.slopes else profile
+
+
+def simulate_mission(sc: Scenario, pack: Pack, capacity_ah: float) -> dict:
+    """The recorded mission: the profile's work, with the rests and opportunity charges at
+    their fractions of the work, the dock charge when the SoC falls to ``dock_soc`` (or at
+    the end, back at the dock); ends after ``work_s`` of work or at the pack's SoC limit."""
+    sim = PackSim(pack, sc.ambient_c)
+    soc = lambda: 1.0 - sim.discharged_ah / capacity_ah  # noqa: E731
+    start_phase(sim, sc, pack, soc)
+    rate = sc.sample_rate_hz
+    events = sorted(
+        [(a * sc.work_s, "rest", d) for a, d in sc.rests]
+        + [(a * sc.work_s, "opportunity", d) for a, d in sc.opportunity_charges]
+    )
+    work = mission(sc.stream(1), pack, mission_profile(sc))
+    rec = Recording()
+    worked_s = 0.0
+    docked = sc.dock_soc is None
+    while worked_s < sc.work_s:
+        if events and worked_s >= events[0][0]:
+            _, kind, duration_s = events.pop(0)
+            if kind == "rest":
+                run_segments(sim, [(on_grid(duration_s, rate), REST_A)], rec, rate)
+            else:
+                limit_s = 10.0 * max(1, round(duration_s / 10.0))
+                charge(sim, replace(dock_plan(sc, pack), cutoff_a=0.0, max_s=limit_s), rec, rate)
+        elif sc.dock_soc is not None and not docked and soc() <= sc.dock_soc:
+            charge(sim, dock_plan(sc, pack), rec, rate)
+            docked = True
+        elif soc() <= pack.soc_limit:
+            break
+        else:
+            duration_s, current_a = next(work)
+            duration_s = on_grid(duration_s, rate)
+            run_segments(sim, [(duration_s, current_a)], rec, rate)
+            worked_s += duration_s
+    if not docked:  # back at the dock
+        charge(sim, dock_plan(sc, pack), rec, rate)
+    t, i, v, q = rec.arrays()
+    temp = rec.temperatures()
+    soc_ref = 1.0 - q / capacity_ah
+    check_recording(sc.name, t, i, v, soc_ref, capacity_ah, None, 1.0 / rate, temp)
+    return {"t": t, "i": i, "v": v, "soc": soc_ref, "temp_c": sc.ambient_c, "temperature_c": temp}
+
+
+@cache
+def base_capacity_ah(chemistry: str) -> float:
+    """The bundled pack's reference capacity (isothermal, as :func:`scenario_capacity_ah`)."""
+    return reference_capacity_ah(PACKS[chemistry])
+
+
+def scenario_capacity_ah(pack: Pack) -> float:
+    """The drawn pack's own reference capacity: C/20 at 25 degC to the cut-off, isothermal (at
+    C/20 the lumped cell warms by hundredths of a kelvin)."""
+    return reference_capacity_ah(replace(pack, thermal=False))
+
+
+def check_capacity(sc: Scenario, capacity_ah: float) -> float:
+    """The measured capacity over the bundled pack's; refuses a pack whose capacity did not move
+    as drawn (within 1 % of ``capacity_x``)."""
+    ratio = capacity_ah / base_capacity_ah(sc.chemistry)
+    if abs(ratio / sc.capacity_x - 1.0) > 0.01:
+        raise RuntimeError(f"{sc.name}: capacity x{ratio:.4f}, drawn x{sc.capacity_x:.4f}")
+    return ratio
+
+
+def describe(sc: Scenario) -> str:
+    start = "full" if sc.start_soc >= 1.0 else f"part-charged ({sc.start_soc:.0%})"
+    rested = "rested" if sc.start_rested else "unrested"
+    dock = (
+        "no dock charge"
+        if sc.dock_soc is None
+        else f"dock CC-CV to full when the SoC falls to {sc.dock_soc:.0%} (or at the end)"
+    )
+    return (
+        f"Corpus mission ({sc.split}, seed {sc.seed}): {mission_profile(sc).name} profile, "
+        f"starts {start} and {rested}, {len(sc.rests)} rest(s), "
+        f"{len(sc.opportunity_charges)} opportunity charge(s), {dock}; ambient "
+        f"{sc.ambient_c} degC, {sc.sample_rate_hz:g} Hz; pack capacity x{sc.capacity_x:.3f}, "
+        f"resistance x{sc.resistance_x:.3f} of the bundled pack."
+    )
+
+
+def build_mission(sc: Scenario, out_dir: str) -> dict:
+    """Simulate, check and write one corpus mission (nothing is written if a check fails)."""
+    pack = scenario_pack(sc)
+    capacity_ah = scenario_capacity_ah(pack)
+    ratio = check_capacity(sc, capacity_ah)
+    data = simulate_mission(sc, pack, capacity_ah)
+    spec = BagSpec(sc.name, sc.chemistry, "mission", sc.seed, sc.ambient_c)
+    spec = replace(spec, description=describe(sc))
+    extra = {
+        "split": sc.split,
+        "scenario": sc.values(),
+        "pack": {
+            "capacity_x": sc.capacity_x,
+            "capacity_x_measured": round(ratio, 4),
+            "resistance_x": sc.resistance_x,
+            "series_resistance_ohm": round(pack.series_resistance_ohm, 6),
+            "thermal": "lumped" if pack.thermal else "isothermal",
+        },
+        "temperature_max_c": round(float(np.max(data["temperature_c"])), 2),
+    }
+    return write_bag(
+        spec,
+        data,
+        capacity_ah,
+        Path(out_dir),
+        pack,
+        sensors=sc.sensors,
+        rng=sc.stream(3),
+        start_ns=EPOCH_NS + sc.seed * 86_400 * 1_000_000_000,
+        extra=extra,
+    )
+
+
 def slow_discharge(pack: Pack, rec: Recording | None) -> float:
     """C/20 from the full state (after a 10-min rest) to the pack cut-off, at 25 degC.
 
@@ -568,6 +1173,7 @@ def slow_discharge(pack: Pack, rec: Recording | None) -> float:
                         current,
                         local.voltage_v[j][:cut],
                         local.discharged_ah[j][:cut],
+                        local.temperature_c[j][:cut],
                     )
             w = (v[k - 1] - pack.cutoff_v) / (v[k - 1] - v[k])
             return float(q[k - 1] + w * (q[k] - q[k - 1]))
@@ -627,13 +1233,32 @@ COMPRESSION = {"mcap": "chunk", "sqlite3": "file"}
 COMPRESSION_TEXT = {"mcap": "zstd-compressed MCAP chunks", "sqlite3": "zstd file compression"}
 
 
-def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack: Pack) -> dict:
-    rng = np.random.default_rng(spec.seed + 1000)
-    sensors = SensorModel.draw(rng)
+def write_bag(
+    spec: BagSpec,
+    data: dict,
+    capacity_ah: float,
+    out_dir: Path,
+    pack: Pack,
+    *,
+    sensors: SensorModel | None = None,
+    rng: np.random.Generator | None = None,
+    start_ns: int | None = None,
+    extra: dict | None = None,
+) -> dict:
+    """Write one bag and its bag.yaml and README. The bundled bags draw their sensors from
+    ``spec.seed + 1000`` and start one day apart in :data:`SPECS` order; a corpus mission
+    gives its own ``sensors``, noise ``rng``, ``start_ns`` and ``extra`` metadata."""
+    if rng is None:
+        rng = np.random.default_rng(spec.seed + 1000)
+    if sensors is None:
+        sensors = SensorModel.draw(rng)
     t, i, v, soc = data["t"], data["i"], data["v"], data["soc"]
-    temp = np.full(t.size, data["temp_c"])
+    temp = data.get("temperature_c")
+    if temp is None:
+        temp = np.full(t.size, data["temp_c"])
     i_m, v_m, temp_m = sensors.measure(rng, i, v, temp)
-    start_ns = EPOCH_NS + (SPECS + DEV_SPECS).index(spec) * 86_400 * 1_000_000_000
+    if start_ns is None:
+        start_ns = EPOCH_NS + (SPECS + DEV_SPECS).index(spec) * 86_400 * 1_000_000_000
     stamps = start_ns + np.round(t * 1e9).astype(np.int64)
     state = (
         battery_state_message(
@@ -696,6 +1321,8 @@ def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack
         "sensors": sensors.as_dict(),
         "description": spec.description,
     }
+    if extra:
+        meta.update(extra)
     if pack.graphite_diffusivity_x != 1.0:
         meta["description"] += (
             f" Dev pack: the graphite's diffusivity x{pack.graphite_diffusivity_x:g}."
@@ -707,6 +1334,7 @@ def write_bag(spec: BagSpec, data: dict, capacity_ah: float, out_dir: Path, pack
 
 def bag_readme(meta: dict) -> str:
     s = meta["sensors"]
+    adc_bits = round(math.log2(16.0 / s["voltage_step_v"]))
     return f"""# {meta["name"]}
 
 {meta["description"]}
@@ -719,16 +1347,62 @@ def bag_readme(meta: dict) -> str:
   {meta["current_min_a"]} .. {meta["current_max_a"]} A (discharge positive).
 - Sensors: current gain error {s["current_gain"]:+.4f}, offset {s["current_offset_a"]:+.3f} A,
   noise {s["current_noise_a"]} A, quantized to {s["current_step_a"]} A; voltage gain error
-  {s["voltage_gain"]:+.5f}, noise {s["voltage_noise_v"] * 1000:.1f} mV, 12-bit ADC over 16 V
+  {s["voltage_gain"]:+.5f}, noise {s["voltage_noise_v"] * 1000:.1f} mV, {adc_bits}-bit ADC over 16 V
   ({s["voltage_step_v"] * 1000:.2f} mV steps); temperature noise {s["temperature_noise_c"]} degC.
 - Storage: rosbag2 {meta["storage"]}, {COMPRESSION_TEXT[meta["storage"]]}. Seed {meta["seed"]}.
 - `/battery/soc_reference` is the simulator's true SoC, not a measurement.
+""" + (scenario_readme(meta) if "split" in meta else "")
+
+
+def scenario_readme(meta: dict) -> str:
+    """A corpus mission's README lines: its split, pack spread and drawn scenario."""
+    p, sc = meta["pack"], meta["scenario"]
+    values = "\n".join(f"  - {k}: {v}" for k, v in sc.items())
+    return f"""- Split: **{meta["split"]}** (corpus seed {meta["seed"]}; ../README.md, "Scenario
+  corpus").
+- Pack spread: capacity x{p["capacity_x"]} (measured x{p["capacity_x_measured"]}), resistance
+  x{p["resistance_x"]} ({p["series_resistance_ohm"] * 1000:+.2f} mOhm in series); thermal model:
+  {p["thermal"]} (highest cell temperature {meta["temperature_max_c"]} degC).
+- Drawn scenario (bag.yaml `scenario`):
+{values}
 """
 
 
 def build(spec: BagSpec, capacity_ah: float, out_dir: str, pack: Pack) -> dict:
     data = simulate_bag(spec, capacity_ah, pack)
     return write_bag(spec, data, capacity_ah, Path(out_dir), pack)
+
+
+def timed_mission(sc: Scenario, out_dir: str) -> tuple[Scenario, dict | str, float]:
+    """:func:`build_mission`, its failure as a message (the mission is skipped), its wall time."""
+    start = time.monotonic()
+    try:
+        result: dict | str = build_mission(sc, out_dir)
+    except Exception as exc:  # any solver or check failure rejects this one mission
+        result = f"{type(exc).__name__}: {exc}"
+    return sc, result, time.monotonic() - start
+
+
+def make_corpus(chemistries: list[str], seeds: list[int], out_dir: Path, jobs: int) -> int:
+    """Every (seed, chemistry) mission not yet in ``out_dir``; rejected ones are reported with
+    their seed and not written. Returns 0 (rejections are results, not errors)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    todo = [draw_scenario(c, seed) for seed in seeds for c in chemistries]
+    todo = [sc for sc in todo if not (out_dir / sc.name / "bag.yaml").exists()]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(timed_mission, sc, str(out_dir)) for sc in todo]
+        for fut in futures:
+            sc, result, wall_s = fut.result()
+            if isinstance(result, str):
+                print(f"REJECTED {sc.chemistry} seed {sc.seed} ({sc.name}): {result}", flush=True)
+                continue
+            print(
+                f"{result['name']}: {result['duration_s'] / 3600:.2f} h at "
+                f"{sc.sample_rate_hz:g} Hz, SoC {result['soc_start']:.3f} -> "
+                f"{result['soc_end']:.3f}, {result['samples']} samples, {wall_s:.0f} s",
+                flush=True,
+            )
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -745,7 +1419,16 @@ def main(argv: list[str] | None = None) -> int:
         default=1.0,
         help="dev: the LFP cell's graphite diffusivity times this (not for bags/)",
     )
+    ap.add_argument(
+        "--corpus", action="store_true", help="make scenario-corpus missions (Scenario corpus)"
+    )
+    ap.add_argument("--count", type=int, default=30, help="corpus: missions per chemistry")
+    ap.add_argument("--chemistry", nargs="+", choices=sorted(PACKS), default=["lfp", "sla"])
+    ap.add_argument("--seeds", type=int, nargs="+", help="corpus: these seeds, not --count")
     args = ap.parse_args(argv)
+    if args.corpus:
+        seeds = args.seeds or range(CORPUS_FIRST_SEED, CORPUS_FIRST_SEED + args.count)
+        return make_corpus(args.chemistry, list(seeds), args.out, args.jobs)
     dev = args.dev or args.graphite_diffusivity_x != 1.0
     if dev and args.out.resolve() == (ROOT / "bags").resolve():
         ap.error("dev bags are not bundled: give --out a directory outside bags/")

@@ -107,8 +107,12 @@ def test_bag_contract(bag: Path) -> None:
     assert s.soc_ref[-1] == pytest.approx(m["soc_end"], abs=1e-4)
     assert s.reference_capacity_ah == pytest.approx(m["reference_capacity_ah"], abs=1e-4)
     # Current sign: ROS current negative on discharge, so the core current is mostly positive
-    # and the SoC falls.
-    assert np.mean(s.current_a) > 0 and s.soc_ref[-1] < s.soc_ref[0]
+    # and the SoC falls (a corpus mission may end charged: its SoC falls where it discharges).
+    if m["kind"] == "mission":
+        assert np.sum(np.diff(s.soc_ref) * s.current_a[:-1]) < 0
+        assert m["split"] in ("tuning", "validation") and m["scenario"]["seed"] == m["seed"]
+    else:
+        assert np.mean(s.current_a) > 0 and s.soc_ref[-1] < s.soc_ref[0]
     assert s.technology == TECHNOLOGY_BY_CHEMISTRY[m["chemistry"]]  # LIFE = 4 / VRLA = 8
     if m["kind"] == "field_run":
         dt = np.diff(s.t_s)
@@ -190,20 +194,9 @@ def test_rate_test_levels(bag: Path) -> None:
     assert per_amp[-1] < 0.5 * per_amp[0], per_amp
 
 
-@pytest.mark.parametrize("bag", ALL, ids=lambda p: p.name)
-def test_voltage_answers_current_steps_in_the_same_sample(bag: Path) -> None:
-    with AnyReader([bag], default_typestore=TYPESTORE) as reader:
-        conn = [c for c in reader.connections if c.topic == REFERENCE_TOPIC]
-        truth = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conn)]
-    i = -np.array([m.current for m in truth])  # noise-free, core sign
-    v = np.array([m.voltage for m in truth])
-    di, dv = np.diff(i), np.diff(v)
-    steps = np.abs(di) > 0.2  # the smallest designed step: C/20 starting (0.25 A)
-    assert steps.any()
-    # Same sample, opposite direction, and at least 2 mOhm worth (the packs' resistances are
-    # tens of mOhm, so a lagging or frozen voltage fails this by an order of magnitude).
-    assert np.all(dv[steps] * di[steps] < 0)
-    assert np.all(np.abs(dv[steps]) > 0.002 * np.abs(di[steps]))
+# The voltage answering every current step in the same sample, and the rest voltages falling
+# with the SoC, are checked on every bag by test/regression/test_bag_physics.py (with
+# tools/make_bags.py's own checks).
 
 
 # -- bag_io on small bags written here -------------------------------------------------------
