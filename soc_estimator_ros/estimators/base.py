@@ -253,13 +253,18 @@ class Estimator(ABC):
             # Grow the variance by the clipped amount, up to MAX_SOC_VAR ("no information").
             self.p[i, i] += min((s - clipped) ** 2, max(MAX_SOC_VAR - self.p[i, i], 0.0))
 
+    def _published(self) -> tuple[float, float]:
+        """The SoC and variance an estimate carries (:attr:`soc`, :attr:`soc_var`)."""
+        return self.soc, self.soc_var
+
     def _estimate(
         self, t_s: float, status: StepStatus, v_pred: float, innov: float, nis: float
     ) -> Estimate:
+        soc, soc_var = self._published()
         return Estimate(
             t_s=t_s,
-            soc=self.soc,
-            soc_var=self.soc_var,
+            soc=soc,
+            soc_var=soc_var,
             x=np.array(self.x, dtype=float),
             p=np.array(self.p, dtype=float),
             state_names=self.state_names,

@@ -40,9 +40,9 @@ at, its innovations consistent), the filter's own SoC, de-weighted by its correl
 independent reading per ``follow_tau_s``, its variance ``max(P_u, model_soc_std^2)``, the
 count's variance floored at ``model_soc_std^2`` (the UKF's ``P_u`` takes the model's error as
 white, so it leaves out what a persistent one costs; the guard floors ``P_u`` there too). So a
-wrong start
-that the filter corrects at light load is followed within minutes, and a model dragged outside
-its envelope is not. A gap or a consistency inflation of the filter inflates the count too.
+wrong start that the filter corrects at light load is followed within minutes, and a model
+dragged outside its envelope is not. A gap or a consistency inflation of the filter inflates
+the count too.
 """
 
 from __future__ import annotations
@@ -52,9 +52,7 @@ from dataclasses import dataclass
 
 from ..models.coulomb import coulomb_step
 from ..units import SECONDS_PER_HOUR
-
-#: A SoC variance past which nothing is known (as ``base.MAX_SOC_VAR``).
-MAX_SOC_VAR = 1.0
+from .base import MAX_SOC_VAR
 
 #: Density of the "model does not hold" hypothesis: d uniform over [-1, 1].
 _WRONG_MODEL_DENSITY = 0.5

@@ -65,7 +65,9 @@ papers report:
    further than the count's own errors explain, its weight falls and the published SoC falls
    back to the count, with a variance that carries the disagreement. The prior that the model
    holds is ``model_prior`` inside the identified temperatures and
-   ``model_prior / (1 + (d / extrapolation_scale_c)^2)`` outside; ``model_prior: 1`` turns
+   ``model_prior exp(-(d / extrapolation_scale_c)^2 / 2)`` at d degC outside (the Gaussian
+   chosen on the 10 degC Panasonic cycles over ``1 / (1 + (d / scale)^2)``, docs/accuracy.md
+   "Do no harm"); ``model_prior: 1`` turns
    the guard off (the UKF's own SoC and variance are published). A rest OCV reading inside
    the identified temperatures, a reset and a CC-CV end re-anchor the count; so does the
    UKF's own SoC while it is trusted (``follow_tau_s``, ``model_soc_std``: ``guard.py``).
@@ -186,6 +188,10 @@ class Hybrid(T2rcUkf):
     def soc_var(self) -> float:
         return self.guarded().soc_var
 
+    def _published(self) -> tuple[float, float]:
+        g = self.guarded()  # once per estimate, not once for the SoC and again for its variance
+        return g.soc, g.soc_var
+
     def _inflate_soc_variance(self, var: float) -> None:
         super()._inflate_soc_variance(var)
         self.count.inflate(var)
@@ -194,8 +200,9 @@ class Hybrid(T2rcUkf):
         """A rest's OCV reading into the count, once per rest, inside the identified range.
 
         The reading is the measured voltage less what the model adds to the OCV curve at the
-        present state (the branches' remaining relaxation, the temperature offset), inverted
-        through the OCV curve with ``ocv_std_v``."""
+        present state (the branches' remaining relaxation, the temperature offset); it updates
+        the count through the OCV curve linearized at the count's own SoC, noise ``ocv_std_v``
+        (an inversion of the curve instead moved the count 7 points on LFP's plateau)."""
         if self._rest_fused or self.model.extrapolation_c(temp_c) != 0.0:
             return
         self._rest_fused = True
@@ -292,9 +299,8 @@ class Hybrid(T2rcUkf):
         else:
             self._rest_fused = False
         if not math.isnan(nis):
-            self._follow_trusted_filter(getattr(self, "_dt_last", 0.0), temp_c)
-        if not math.isnan(nis):
             dt = getattr(self, "_dt_last", 0.0)
+            self._follow_trusted_filter(dt, temp_c)
             w = 1.0 - math.exp(-dt / self.tuning["nis_tau_s"]) if dt > 0.0 else 0.0
             self.nis_avg += w * (min(nis, 100.0) - self.nis_avg)
         return v_pred, innov, nis
