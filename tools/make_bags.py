@@ -13,6 +13,16 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
         # a dev pack, its graphite diffusing 10x faster (docs/identification.md)
     python tools/make_bags.py --corpus --out /work/corpus [--count 30] [--chemistry lfp sla] \
         [--seeds 1001 1003] [--jobs 1]   # the scenario corpus (below), outside the repo
+    python tools/make_bags.py --aged --out /work/health_corpus [--chemistry lfp sla] \
+        [--only lfp_aged75] --jobs 1     # battery health: fresh and aged packs' missions
+    python tools/make_bags.py --sized --out /work/health_corpus --jobs 1   # 24 V packs
+
+Battery health (``--aged``, ``--sized``; bags/README.md, "Aged packs and packs of other
+sizes"): each pack of :data:`HEALTH_PACKS` (LFP aged by loss of lithium inventory and active
+material, SLA by loss of active plate area, both with a series resistance; fresh packs as the
+control; 24 V packs of other sizes) is measured (C/20 capacity, 5-s resistance, kept in
+``DIR/packs.yaml``) and given 2-3 missions from full with a rest half-way and at the end, 2 Hz,
+validation seeds from 2000; ``DIR/STATUS.md`` lists the packs and the missions written.
 
 Scenario corpus (``--corpus``; bags/README.md, "Scenario corpus", has the full table): seeded
 missions, one bag per mission in the bundled bags' format (``kind: mission``), with ``split``,
@@ -114,6 +124,12 @@ class Pack:
     #: 1 C discharge step from rest at 50 % SoC and 25 degC, per ampere (measured on this
     #: simulator, ``pack_resistance_ohm``).
     resistance_ohm: float = 0.0
+    #: Ageing (``--aged``), LFP only: the cell's cyclable lithium (loss of lithium inventory:
+    #: the graphite's lithium before the full state is set) and both electrodes' active
+    #: material volume fractions (loss of active material) times these; the SLA pack ages by
+    #: ``capacity_x`` (active plate area) instead. 1 for a fresh pack.
+    lithium_x: float = 1.0
+    active_material_x: float = 1.0
 
     @property
     def current_scale(self) -> float:
@@ -169,6 +185,8 @@ class PackSim:
         self.pack = pack
         if pack.thermal and pack.chemistry != "lfp":
             raise ValueError("the lumped thermal model is used for the LFP pack only")
+        if pack.chemistry != "lfp" and (pack.lithium_x, pack.active_material_x) != (1.0, 1.0):
+            raise ValueError("lithium and active material ageing is the LFP pack's")
         if pack.chemistry == "sla":
             model = pybamm.lead_acid.Full()
             pv = pybamm.ParameterValues("Sulzer2019")
@@ -185,6 +203,15 @@ class PackSim:
             if pack.graphite_diffusivity_x != 1.0:
                 key = "Negative particle diffusivity [m2.s-1]"
                 pv[key] = pv[key] * pack.graphite_diffusivity_x
+            for key in (
+                "Negative electrode active material volume fraction",
+                "Positive electrode active material volume fraction",
+            ):
+                pv[key] = pv[key] * pack.active_material_x
+            # The cyclable lithium (set_initial_state counts it from the initial concentrations):
+            # the graphite's concentration over the kept volume, times the lithium kept.
+            key = "Initial concentration in negative electrode [mol.m-3]"
+            pv[key] = pv[key] * pack.lithium_x / pack.active_material_x
             pv["Lower voltage cut-off [V]"] = 2.0
             pv = pv.set_initial_state(1.0, inplace=False)  # 100 %: OCV at the 3.6 V limit
             # Solver events only (set after the initial state, which uses 2.0-3.6 V): a cold
@@ -701,7 +728,8 @@ def check_recording(
 class BagSpec:
     name: str
     chemistry: str
-    kind: str  # pulse_test | rate_test | load_test | slow_discharge | field_run
+    kind: str  # pulse_test | rate_test | load_test | slow_discharge | field_run | (corpus)
+    # mission | (--aged, --sized) health_mission
     seed: int
     temp_c: float = 25.0
     start_soc: float = 1.0
@@ -1335,7 +1363,8 @@ def write_bag(
 def bag_readme(meta: dict) -> str:
     s = meta["sensors"]
     adc_bits = round(math.log2(16.0 / s["voltage_step_v"]))
-    return f"""# {meta["name"]}
+    return (
+        f"""# {meta["name"]}
 
 {meta["description"]}
 
@@ -1351,7 +1380,10 @@ def bag_readme(meta: dict) -> str:
   ({s["voltage_step_v"] * 1000:.2f} mV steps); temperature noise {s["temperature_noise_c"]} degC.
 - Storage: rosbag2 {meta["storage"]}, {COMPRESSION_TEXT[meta["storage"]]}. Seed {meta["seed"]}.
 - `/battery/soc_reference` is the simulator's true SoC, not a measurement.
-""" + (scenario_readme(meta) if "split" in meta else "")
+"""
+        + (scenario_readme(meta) if "scenario" in meta else "")
+        + (health_readme(meta) if "health" in meta else "")
+    )
 
 
 def scenario_readme(meta: dict) -> str:
@@ -1405,6 +1437,333 @@ def make_corpus(chemistries: list[str], seeds: list[int], out_dir: Path, jobs: i
     return 0
 
 
+# -- battery health: aged packs and packs of other sizes (--aged, --sized) -------------------
+#: Health missions' seeds (validation only: nothing is tuned on them): 2000 + 10 x the pack's
+#: index in :data:`HEALTH_PACKS` + the mission's number (1-3), with the chemistry as a second
+#: word of every random stream, as in the corpus.
+HEALTH_FIRST_SEED = 2000
+#: The health missions' sample rate (small bags).
+HEALTH_RATE_HZ = 2.0
+#: A health mission: a rest at full, the seeder's work down to the pack's SoC limit plus up to
+#: HEALTH_END_DSOC, a rest of HEALTH_REST_S (uniform) half-way down and another at the end.
+HEALTH_START_REST_S = 300.0
+HEALTH_REST_S = (1800.0, 3600.0)
+HEALTH_END_DSOC = 0.05
+
+
+@dataclass(frozen=True)
+class HealthPack:
+    """A pack of the battery-health data: a bundled pack aged (``aged*``; ``fresh`` is the
+    control) or the bundled chemistry in another size (``sized``).
+
+    ``capacity_x`` and ``resistance_x`` are what the ageing aims at (of the fresh pack's
+    measured capacity and resistance); the pack is then measured (:func:`measure_health_pack`).
+    LFP ages by loss of lithium inventory (``lithium_x``) and of active material in both
+    electrodes (``active_material_x``); SLA by loss of active plate area (``capacity_x`` as the
+    electrode width, the pores' acid with it). Both then get a series (film, contact)
+    resistance that brings the measured 5-s drop to ``resistance_x`` of the fresh pack's.
+    """
+
+    name: str  # bag folders <name>_m<k>
+    chemistry: str
+    missions: int
+    capacity_x: float = 1.0
+    resistance_x: float = 1.0
+    lithium_x: float = 1.0
+    active_material_x: float = 1.0
+    #: Another size (``--sized``): cells in series and the nominal capacity; the mission's
+    #: currents times the nominal capacity over the bundled pack's (a robot sized to its pack).
+    cells: int | None = None
+    pack_capacity_ah: float | None = None
+    serial: str = ""
+
+    @property
+    def sized(self) -> bool:
+        return self.cells is not None
+
+    def bag_name(self, k: int) -> str:
+        return f"{self.name}_m{k}"
+
+    def seed(self, k: int) -> int:
+        return HEALTH_FIRST_SEED + 10 * HEALTH_PACKS.index(self) + k
+
+    def electrochemistry(self) -> Pack:
+        """The simulated pack before its series resistance (isothermal; the missions' LFP pack
+        warms with the lumped model, as in the corpus)."""
+        base = PACKS[self.chemistry]
+        pack = replace(base, serial=self.serial or base.serial)
+        if self.sized:
+            scale = self.cells / base.cells
+            pack = replace(
+                pack,
+                cells=self.cells,
+                pack_capacity_ah=self.pack_capacity_ah,
+                cutoff_v=base.cutoff_v * scale,
+                charge_voltage_v=base.charge_voltage_v * scale,
+                resistance_ohm=0.0,  # measured
+            )
+        if self.chemistry == "sla":
+            return replace(pack, capacity_x=self.capacity_x)
+        return replace(pack, lithium_x=self.lithium_x, active_material_x=self.active_material_x)
+
+
+HEALTH_PACKS = [
+    # Ageing parameters chosen on this simulator for about 90 % and 75 % of the fresh capacity
+    # (LFP: the cell is lithium-limited, so the lithium sets the capacity; the loss of active
+    # material adds current density, hence resistance). The measured values are in the bags.
+    HealthPack("lfp_fresh", "lfp", 3),
+    HealthPack("lfp_aged90", "lfp", 3, 0.90, 1.3, 0.904, 0.95, serial="ROYPOW-12V6AH-SIM-AGED90"),
+    HealthPack("lfp_aged75", "lfp", 3, 0.75, 1.7, 0.758, 0.875, serial="ROYPOW-12V6AH-SIM-AGED75"),
+    HealthPack("sla_fresh", "sla", 3),
+    HealthPack("sla_aged90", "sla", 3, 0.90, 1.3, serial="AJC-12V5AH-SIM-AGED90"),
+    HealthPack("sla_aged75", "sla", 3, 0.75, 1.7, serial="AJC-12V5AH-SIM-AGED75"),
+    # Other sizes (24 V): 8 LFP cells of 12 Ah, 12 SLA cells of 20 Ah (C/20).
+    HealthPack("lfp_24v12ah", "lfp", 2, cells=8, pack_capacity_ah=12.0, serial="LFP-24V12AH-SIM"),
+    HealthPack("sla_24v20ah", "sla", 2, cells=12, pack_capacity_ah=20.0, serial="SLA-24V20AH-SIM"),
+]
+
+
+def pack_resistance_ohm(pack: Pack, capacity_ah: float) -> float:
+    """The pack's resistance as :attr:`Pack.resistance_ohm` defines it: from the full state at
+    25 degC (isothermal), C/5 to 50 % of ``capacity_ah``, a 1-h rest, then the voltage drop 5 s
+    into a 1 C step (of the nominal capacity), per ampere."""
+    sim = PackSim(replace(pack, thermal=False), 25.0)
+    soc = lambda: 1.0 - sim.discharged_ah / capacity_ah  # noqa: E731
+    discharge_to(sim, soc, 0.5, itertools.repeat((30.0, pack.pack_capacity_ah / 5.0)))
+    run_segments(sim, [(3600.0, 0.0)], None)
+    rested_v = sim.last_v
+    run_segments(sim, [(5.0, pack.pack_capacity_ah)], None)
+    return (rested_v - sim.last_v) / pack.pack_capacity_ah
+
+
+def measure_health_pack(hp: HealthPack, fresh: dict | None) -> dict:
+    """Age (or size) the pack and measure it: the resistance of its electrochemistry (at 50 %
+    of the capacity aimed at), the series resistance that brings it to ``resistance_x`` of the
+    fresh pack's (``fresh``: that pack's measurement; None for a fresh or sized pack: no series
+    resistance), then the capacity at C/20 (:func:`scenario_capacity_ah`) with it."""
+    pack = hp.electrochemistry()
+    start = time.monotonic()
+    if fresh is None:
+        guess_ah = reference_capacity_ah(pack)
+        r_chem = pack_resistance_ohm(pack, guess_ah)
+        series = 0.0
+    else:
+        r_chem = pack_resistance_ohm(pack, hp.capacity_x * fresh["capacity_ah"])
+        series = hp.resistance_x * fresh["resistance_ohm"] - r_chem
+    pack = replace(pack, series_resistance_ohm=series, resistance_ohm=r_chem + series)
+    capacity_ah = guess_ah if fresh is None else scenario_capacity_ah(pack)
+    ref = fresh or {"capacity_ah": capacity_ah, "resistance_ohm": r_chem + series}
+    return {
+        "pack": hp.name,
+        "chemistry": hp.chemistry,
+        "cells_in_series": pack.cells,
+        "design_capacity_ah": pack.pack_capacity_ah,
+        "serial_number": pack.serial,
+        "capacity_ah": round(capacity_ah, 4),
+        "capacity_fraction": round(capacity_ah / ref["capacity_ah"], 4),
+        "resistance_ohm": round(r_chem + series, 6),
+        "resistance_factor": round((r_chem + series) / ref["resistance_ohm"], 4),
+        "electrochemical_resistance_ohm": round(r_chem, 6),
+        "series_resistance_ohm": round(series, 6),
+        "ageing": {
+            "capacity_x_aimed": hp.capacity_x,
+            "resistance_x_aimed": hp.resistance_x,
+            "lithium_x": hp.lithium_x,
+            "active_material_x": hp.active_material_x if hp.chemistry == "lfp" else hp.capacity_x,
+        },
+        "measured_in_s": round(time.monotonic() - start, 1),
+    }
+
+
+def health_pack_measurements(packs: list[HealthPack], out_dir: Path) -> dict[str, dict]:
+    """Each pack's measurement (:func:`measure_health_pack`), kept in ``out_dir/packs.yaml`` so
+    that a later run (another chemistry, missions left) does not measure it again."""
+    path = out_dir / "packs.yaml"
+    known = yaml.safe_load(path.read_text()) if path.exists() else {}
+    for hp in packs:
+        if hp.name in known:
+            continue
+        fresh = None
+        if hp.resistance_x != 1.0 or hp.capacity_x != 1.0:  # aged: of the fresh pack's
+            control = next(p for p in HEALTH_PACKS if p.name == f"{hp.chemistry}_fresh")
+            if control.name not in known:
+                health_pack_measurements([control], out_dir)
+                known = yaml.safe_load(path.read_text())
+            fresh = known[control.name]
+        known[hp.name] = measure_health_pack(hp, fresh)
+        m = known[hp.name]
+        print(
+            f"{hp.name}: {m['capacity_ah']:.4f} Ah (x{m['capacity_fraction']:.4f}), "
+            f"{m['resistance_ohm'] * 1000:.2f} mOhm (x{m['resistance_factor']:.3f}), "
+            f"{m['measured_in_s']:.0f} s",
+            flush=True,
+        )
+        path.write_text(yaml.safe_dump(known, sort_keys=False))
+    return known
+
+
+def health_pack(hp: HealthPack, m: dict) -> Pack:
+    """The measured pack the missions run on (LFP warming, as in the corpus)."""
+    return replace(
+        hp.electrochemistry(),
+        series_resistance_ohm=m["series_resistance_ohm"],
+        resistance_ohm=m["resistance_ohm"],
+        thermal=hp.chemistry == "lfp",
+    )
+
+
+def simulate_health_mission(hp: HealthPack, k: int, m: dict) -> tuple[dict, dict]:
+    """Mission ``k`` of the pack: from the full, rested state (the simulator's full state, as a
+    CC-CV charge to its taper and a rest leave it; not recorded), HEALTH_START_REST_S at the
+    bridge's current, the seeder's work to half-way (in SoC) to the end, a rest, the work on to
+    the pack's SoC limit plus up to HEALTH_END_DSOC, and a rest at the end. Returns the
+    signals and the drawn values."""
+    seed = hp.seed(k)
+    rng = np.random.default_rng([seed, CHEMISTRY_STREAM[hp.chemistry], 0])
+    pack = health_pack(hp, m)
+    end_soc = round(pack.soc_limit + float(rng.uniform(0.0, HEALTH_END_DSOC)), 4)
+    mid_rest_s = on_grid(float(rng.uniform(*HEALTH_REST_S)), HEALTH_RATE_HZ)
+    end_rest_s = on_grid(float(rng.uniform(*HEALTH_REST_S)), HEALTH_RATE_HZ)
+    mid_soc = 0.5 * (1.0 + end_soc)
+    scale = pack.pack_capacity_ah / PACKS[hp.chemistry].pack_capacity_ah
+    work = mission(np.random.default_rng([seed, CHEMISTRY_STREAM[hp.chemistry], 1]), pack)
+    capacity_ah = m["capacity_ah"]
+    sim = PackSim(pack, 25.0)
+    soc = lambda: 1.0 - sim.discharged_ah / capacity_ah  # noqa: E731
+    rec = Recording()
+    rate = HEALTH_RATE_HZ
+    run_segments(sim, [(HEALTH_START_REST_S, REST_A)], rec, rate)
+    for target, rest_s in ((mid_soc, mid_rest_s), (end_soc, end_rest_s)):
+        while soc() > target:
+            duration_s, current_a = next(work)
+            run_segments(sim, [(on_grid(duration_s, rate), current_a * scale)], rec, rate)
+        run_segments(sim, [(rest_s, REST_A)], rec, rate)
+    t, i, v, q = rec.arrays()
+    temp = rec.temperatures()
+    soc_ref = 1.0 - q / capacity_ah
+    check_recording(hp.bag_name(k), t, i, v, soc_ref, capacity_ah, None, 1.0 / rate, temp)
+    drawn = {
+        "end_soc": end_soc,
+        "mid_soc": round(mid_soc, 4),
+        "mid_rest_s": mid_rest_s,
+        "end_rest_s": end_rest_s,
+        "current_scale": round(scale, 4),
+    }
+    data = {"t": t, "i": i, "v": v, "soc": soc_ref, "temp_c": 25.0, "temperature_c": temp}
+    return data, drawn
+
+
+def build_health_mission(hp: HealthPack, k: int, m: dict, out_dir: str) -> dict:
+    """Simulate, check and write mission ``k`` of the pack (nothing is written if a check
+    fails). The sensors are the pack's robot's (drawn from the pack's first seed, the same in
+    each of its missions), their noise the mission's."""
+    data, drawn = simulate_health_mission(hp, k, m)
+    seed = hp.seed(k)
+    pack = health_pack(hp, m)
+    sensors = SensorModel.draw(np.random.default_rng([hp.seed(0), CHEMISTRY_STREAM[hp.chemistry]]))
+    what = "fresh (the control)" if hp.capacity_x == 1.0 and not hp.sized else "aged"
+    if hp.sized:
+        what = f"{pack.cells} cells, {pack.pack_capacity_ah:g} Ah nominal"
+    description = (
+        f"Battery-health mission {k} of {hp.missions} of pack {hp.name} ({what}; validation, "
+        f"seed {seed}): rested at full, the seeder's work to {drawn['mid_soc']:.0%}, a "
+        f"{drawn['mid_rest_s'] / 60:.0f}-min rest, the work on to {drawn['end_soc']:.0%}, a "
+        f"{drawn['end_rest_s'] / 60:.0f}-min rest; 25 degC, {HEALTH_RATE_HZ:g} Hz."
+    )
+    spec = BagSpec(hp.bag_name(k), hp.chemistry, "health_mission", seed, description=description)
+    extra = {"split": "validation", "health": {**m, "mission": k, "of": hp.missions, **drawn}}
+    return write_bag(
+        spec,
+        data,
+        m["capacity_ah"],
+        Path(out_dir),
+        pack,
+        sensors=sensors,
+        rng=np.random.default_rng([seed, CHEMISTRY_STREAM[hp.chemistry], 3]),
+        start_ns=EPOCH_NS + seed * 86_400 * 1_000_000_000,
+        extra=extra,
+    )
+
+
+def health_readme(meta: dict) -> str:
+    """A health mission's README lines: its pack as measured."""
+    h = meta["health"]
+    return f"""- Pack **{h["pack"]}** ({h["cells_in_series"]} cells in series, design capacity
+  {h["design_capacity_ah"]} Ah, serial `{h["serial_number"]}`): capacity measured at C/20
+  {h["capacity_ah"]} Ah (x{h["capacity_fraction"]} of the fresh pack), resistance
+  {h["resistance_ohm"] * 1000:.2f} mOhm (5 s into 1 C at 50 %; x{h["resistance_factor"]} of the
+  fresh pack; {h["series_resistance_ohm"] * 1000:+.2f} mOhm of it in series). Mission {h["mission"]}
+  of {h["of"]}, split **validation** (../README.md, "Aged packs and packs of other sizes").
+"""
+
+
+def write_health_status(out_dir: Path, known: dict[str, dict]) -> None:
+    """``out_dir/STATUS.md``: the packs as measured and the missions written so far."""
+    rows = []
+    for hp in HEALTH_PACKS:
+        m = known.get(hp.name)
+        if m is None:
+            continue
+        ready = [hp.bag_name(k) for k in range(1, hp.missions + 1)]
+        ready = [b for b in ready if (out_dir / b / "bag.yaml").exists()]
+        rows.append(
+            f"| {hp.name} | {m['cells_in_series']} | {m['design_capacity_ah']} | "
+            f"{m['capacity_ah']:.4f} | {m['capacity_fraction']:.4f} | "
+            f"{m['resistance_ohm'] * 1000:.2f} | {m['resistance_factor']:.3f} | "
+            f"{', '.join(ready) or '-'} |"
+        )
+    (out_dir / "STATUS.md").write_text(
+        "# Battery-health data: packs measured, missions ready\n\n"
+        "Written by `tools/make_bags.py --aged/--sized` after each mission. Capacity: C/20 to "
+        "the cut-off at 25 degC; resistance: 5 s into a 1 C step at 50 %, rested; fractions "
+        "and factors of the chemistry's fresh pack (sized packs: of themselves).\n\n"
+        "| Pack | Cells | Design Ah | Capacity Ah | Fraction | R mOhm | R factor | Missions "
+        "ready |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+    )
+
+
+def timed_health_mission(hp: HealthPack, k: int, m: dict, out_dir: str):
+    """:func:`build_health_mission`, its failure as a message, its wall time."""
+    start = time.monotonic()
+    try:
+        result: dict | str = build_health_mission(hp, k, m, out_dir)
+    except Exception as exc:  # a solver or check failure rejects this one mission
+        result = f"{type(exc).__name__}: {exc}"
+    return hp, k, result, time.monotonic() - start
+
+
+def make_health(sized: bool, chemistries: list[str], only, out_dir: Path, jobs: int) -> int:
+    """The aged packs' (``sized``: the other sizes') missions not yet in ``out_dir``; rejected
+    ones are reported with their seed and not written."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    packs = [
+        hp
+        for hp in HEALTH_PACKS
+        if hp.sized == sized and hp.chemistry in chemistries and (not only or hp.name in only)
+    ]
+    known = health_pack_measurements(packs, out_dir)
+    write_health_status(out_dir, known)
+    todo = [(hp, k) for hp in packs for k in range(1, hp.missions + 1)]
+    todo = [(hp, k) for hp, k in todo if not (out_dir / hp.bag_name(k) / "bag.yaml").exists()]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [
+            pool.submit(timed_health_mission, hp, k, known[hp.name], str(out_dir)) for hp, k in todo
+        ]
+        for fut in futures:
+            hp, k, result, wall_s = fut.result()
+            if isinstance(result, str):
+                print(f"REJECTED {hp.bag_name(k)} seed {hp.seed(k)}: {result}", flush=True)
+                continue
+            write_health_status(out_dir, known)
+            print(
+                f"{result['name']}: {result['duration_s'] / 3600:.2f} h, SoC "
+                f"{result['soc_start']:.3f} -> {result['soc_end']:.3f}, {result['samples']} "
+                f"samples, {wall_s:.0f} s",
+                flush=True,
+            )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Simulate the bundled bags with PyBaMM.")
     ap.add_argument("--out", type=Path, default=ROOT / "bags")
@@ -1422,6 +1781,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--corpus", action="store_true", help="make scenario-corpus missions (Scenario corpus)"
     )
+    ap.add_argument(
+        "--aged", action="store_true", help="make the aged packs' missions (Aged packs ...)"
+    )
+    ap.add_argument(
+        "--sized", action="store_true", help="make the missions of packs of other sizes"
+    )
     ap.add_argument("--count", type=int, default=30, help="corpus: missions per chemistry")
     ap.add_argument("--chemistry", nargs="+", choices=sorted(PACKS), default=["lfp", "sla"])
     ap.add_argument("--seeds", type=int, nargs="+", help="corpus: these seeds, not --count")
@@ -1429,6 +1794,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.corpus:
         seeds = args.seeds or range(CORPUS_FIRST_SEED, CORPUS_FIRST_SEED + args.count)
         return make_corpus(args.chemistry, list(seeds), args.out, args.jobs)
+    if args.aged or args.sized:
+        return make_health(args.sized, args.chemistry, args.only, args.out, args.jobs)
     dev = args.dev or args.graphite_diffusivity_x != 1.0
     if dev and args.out.resolve() == (ROOT / "bags").resolve():
         ap.error("dev bags are not bundled: give --out a directory outside bags/")

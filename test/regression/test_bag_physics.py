@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from conftest import REPO_ROOT
 from rosbags.highlevel import AnyReader
 
@@ -101,3 +102,51 @@ def test_the_checks_catch_a_frozen_voltage() -> None:
     assert len(mb.rest_order_failures(t, cur, rising, soc)) == 1
     falling = np.where(cur > 1.0, 12.5, np.where(later, 12.8, 12.9))
     assert mb.rest_order_failures(t, cur, falling, soc) == []
+
+
+def _meta(bag: Path) -> dict:
+    return yaml.safe_load((bag / "bag.yaml").read_text())
+
+
+#: Bundled battery-health sequences (``make_bags.py --aged``): pack name -> its missions' bags.
+HEALTH: dict[str, list[Path]] = {}
+for _bag in BAGS:
+    if _meta(_bag)["kind"] == "health_mission":
+        HEALTH.setdefault(_meta(_bag)["health"]["pack"], []).append(_bag)
+
+
+@pytest.mark.parametrize("pack", sorted(HEALTH), ids=str)
+def test_health_sequence_is_one_pack_from_full_with_rests(pack: str) -> None:
+    """A bundled aged pack's missions (bags/README.md, "Aged packs and packs of other sizes"):
+    one pack (serial, measured capacity), in time order, each from full at rest down to its SoC
+    limit plus at most 5 %, with a rest of 30-60 min half-way and at the end; the reference
+    capacity is the aged pack's own measured one, the README's table says the same."""
+    mb = make_bags()
+    bags = sorted(HEALTH[pack], key=lambda b: _meta(b)["health"]["mission"])
+    metas = [_meta(b) for b in bags]
+    h = metas[0]["health"]
+    assert [m["health"]["mission"] for m in metas] == list(range(1, h["of"] + 1))
+    assert {m["health"]["serial_number"] for m in metas} == {h["serial_number"]}
+    assert {m["reference_capacity_ah"] for m in metas} == {h["capacity_ah"]}
+    assert len({m["seed"] for m in metas}) == len(metas) and metas[0]["split"] == "validation"
+    limit = mb.PACKS[h["chemistry"]].soc_limit
+    for m, bag in zip(metas, bags, strict=True):
+        t, i, v, soc = true_signals(bag)
+        assert soc[0] == pytest.approx(1.0, abs=1e-6)
+        assert limit - 0.01 <= soc[-1] <= limit + mb.HEALTH_END_DSOC + 0.01
+        probes = mb.rest_probes(t, i, v, soc)
+        assert len(probes) == 2, "a rest half-way and one at the end"
+        rest_s = [m["health"]["mid_rest_s"], m["health"]["end_rest_s"]]
+        assert all(1800.0 <= r <= 3600.0 for r in rest_s)
+        assert t[-1] - t[probes[-1]] == pytest.approx(rest_s[1] - mb.REST_PROBE_S, abs=1.0)
+    starts = [read_start_ns(b) for b in bags]
+    assert starts == sorted(starts)
+    row = f"| `{pack}` |"
+    table = (REPO_ROOT / "bags" / "README.md").read_text().splitlines()
+    (line,) = [x for x in table if x.startswith(row)]
+    assert f"{h['capacity_ah']:.4f}" in line and f"{h['resistance_factor']:.2f}" in line
+
+
+def read_start_ns(bag: Path) -> int:
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    return int(info["starting_time"]["nanoseconds_since_epoch"])
