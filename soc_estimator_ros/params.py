@@ -2,8 +2,9 @@
 
 One YAML file describes one battery (pack level): chemistry, capacity, limits, the OCV table,
 the Saft RC model, the n-RC Thevenin model as tables over SoC (temperature optional), the
-default filter tunings, and optionally the low-battery levels (``levels:``) and the charger's
-CC-CV end (``charge:``). ``config/*.yaml`` are examples; docs/battery_files.md documents every key.
+default filter tunings, and optionally the low-battery levels (``levels:``), the charger's
+CC-CV end (``charge:``) and how health is learned (``health:``). ``config/*.yaml`` are
+examples; docs/battery_files.md documents every key.
 
 Every problem in a file raises :class:`ParamFileError` with one message that names the file,
 the key (dotted path), the value found and what was expected, e.g.::
@@ -111,6 +112,78 @@ class ChargeSettings:
 
 
 @dataclass(frozen=True)
+class HealthSettings:
+    """The optional ``health:`` section: how the battery's health is learned (``health/``).
+
+    Every entry has a default (an entry the file leaves out takes it).
+
+    Attributes:
+        capacity_std_frac: the file's capacity's std for a pack of unknown age (fraction).
+        capacity_drift_per_cycle: the capacity's std growth per equivalent full cycle
+            (fraction): how fast what was learned goes out of date as the pack ages.
+        rest_min_s: a rest this long is read as an OCV (s).
+        rest_current_c_rate: |current| (C, low-passed) at or below which the pack rests.
+        ocv_std_v: the voltage std of such a reading (V, pack): the table's error and the
+            relaxation the model leaves.
+        pair_min_soc_drop: charge (fraction of the capacity) two readings must be apart to
+            make a pair.
+        full_soc_std: the SoC std at a CC-CV charge's end.
+        current_offset_std_a, current_gain_std: the current sensor's offset (A) and gain
+            (fraction) std (the guard's, ``estimators/guard.py``).
+        r0_factor_std: the ``R_0`` factor's std for a pack of unknown age.
+        r0_drift_per_hour: the factor's random walk (per sqrt(hour)).
+        step_min_c_rate: a current step (C) at least this big between two samples is read.
+        step_max_dt_s: ... only when the samples are at most this far apart (s).
+        voltage_noise_std_v, current_noise_std_a: one sample's sensor noise (V, A).
+        step_model_frac: the model's relative error on a step's answer.
+        soh_warn, soh_dead: state of health below which diagnostics warn and
+            ``power_supply_health`` is DEAD (seed 001: 0.6 is the end of life).
+    """
+
+    capacity_std_frac: float = 0.10
+    capacity_drift_per_cycle: float = 0.002
+    rest_min_s: float = 1800.0
+    rest_current_c_rate: float = 0.02
+    ocv_std_v: float = 0.02
+    pair_min_soc_drop: float = 0.1
+    full_soc_std: float = 0.01
+    current_offset_std_a: float = 0.02
+    current_gain_std: float = 0.005
+    r0_factor_std: float = 0.3
+    r0_drift_per_hour: float = 0.02
+    step_min_c_rate: float = 0.5
+    step_max_dt_s: float = 1.0
+    voltage_noise_std_v: float = 0.004
+    current_noise_std_a: float = 0.05
+    step_model_frac: float = 0.1
+    soh_warn: float = 0.8
+    soh_dead: float = 0.6
+
+
+#: Bounds of every ``health:`` entry (lo, hi).
+HEALTH_BOUNDS: dict[str, tuple[float, float]] = {
+    "capacity_std_frac": (1e-4, 1.0),
+    "capacity_drift_per_cycle": (0.0, 0.1),
+    "rest_min_s": (1.0, 86400.0),
+    "rest_current_c_rate": (0.0, 1.0),
+    "ocv_std_v": (1e-4, 1.0),
+    "pair_min_soc_drop": (0.0, 1.0),
+    "full_soc_std": (1e-4, 0.5),
+    "current_offset_std_a": (0.0, 100.0),
+    "current_gain_std": (0.0, 0.5),
+    "r0_factor_std": (1e-4, 5.0),
+    "r0_drift_per_hour": (0.0, 5.0),
+    "step_min_c_rate": (1e-3, 100.0),
+    "step_max_dt_s": (1e-3, 60.0),
+    "voltage_noise_std_v": (1e-5, 1.0),
+    "current_noise_std_a": (1e-5, 100.0),
+    "step_model_frac": (0.0, 10.0),
+    "soh_warn": (0.0, 1.0),
+    "soh_dead": (0.0, 1.0),
+}
+
+
+@dataclass(frozen=True)
 class OcvTable:
     """OCV points: ``soc`` (fractions, increasing) and ``voltage_v`` (volts, increasing).
 
@@ -155,6 +228,7 @@ class BatteryParams:
     source: str = ""
     levels: LevelSettings = field(default_factory=LevelSettings)
     charge: ChargeSettings = field(default_factory=ChargeSettings)
+    health: HealthSettings = field(default_factory=HealthSettings)
 
     def ocv_curve(self) -> OcvCurve:
         """The battery's OCV curve."""
@@ -329,6 +403,16 @@ def _parse_charge(chk: _Checker, root: Mapping[str, Any], limits: Limits) -> Cha
     return ChargeSettings(**got)
 
 
+def _parse_health(chk: _Checker, root: Mapping[str, Any]) -> HealthSettings:
+    got = _optional_section(chk, root, "health", HEALTH_BOUNDS)
+    health = HealthSettings(**got)
+    if health.soh_dead > health.soh_warn:
+        raise chk.fail(
+            "health.soh_dead", health.soh_dead, f"a value <= health.soh_warn ({health.soh_warn:g})"
+        )
+    return health
+
+
 def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     """Validate a raw YAML tree (already parsed) and build :class:`BatteryParams`."""
     chk = _Checker(source)
@@ -498,6 +582,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     filters = _parse_filters(chk, root.get("filters", {}))
     levels = _parse_levels(chk, root)
     charge = _parse_charge(chk, root, limits)
+    health = _parse_health(chk, root)
     return BatteryParams(
         name=name,
         chemistry=chemistry,
@@ -519,6 +604,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         source=source_text,
         levels=levels,
         charge=charge,
+        health=health,
     )
 
 
@@ -595,4 +681,8 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
         given = {k: v for k, v in asdict(section).items() if v is not None}
         if given:
             out[name] = given
+    defaults = asdict(HealthSettings())
+    health = {k: v for k, v in asdict(params.health).items() if v != defaults[k]}
+    if health:  # only what differs from the defaults
+        out["health"] = health
     return out

@@ -88,6 +88,8 @@ RUNTIME_COLUMNS = (
     "max_charge_current_10s_a",
     "level",
 )
+#: The health monitor's learned values per row (``health/``; NaN with health off).
+HEALTH_COLUMNS = ("capacity_ah", "r0_factor")
 
 
 @dataclass(frozen=True)
@@ -96,7 +98,7 @@ class RuntimeSeries:
     (``runtime/monitor.py``; NaN before the first), and the FULL status at each sample.
 
     Attributes:
-        values: one array per name of :data:`RUNTIME_COLUMNS`.
+        values: one array per name of :data:`RUNTIME_COLUMNS` and :data:`HEALTH_COLUMNS`.
         full: FULL held after the sample (``power_supply_status``).
         soc_empty: the SoC the time to empty runs to (``limits.soc_min``).
     """

@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy.linalg.lapack import dpotrf
 
+from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
 from ..units import SECONDS_PER_HOUR
 
@@ -274,6 +275,29 @@ class Estimator(ABC):
             status=status,
             updated=not math.isnan(innov),
         )
+
+    # -- what the health estimator (``health/``) learns and reads ------------------------------
+    def set_health(self, capacity_ah: float, r0_factor: float) -> None:
+        """Use a learned full capacity (Ah) and factor on ``R_0`` from now on (the SoC stays:
+        it is what the voltage and the count anchor; the charge behind it is rescaled).
+
+        Every estimator counts charge over ``capacity_ah``; those with a Thevenin model
+        (``self.model``) also take the factor. The RC model's bulk capacitor stays the file's.
+        """
+        if not (capacity_ah > 0.0 and r0_factor > 0.0):
+            raise ValueError(
+                f"set_health needs capacity and factor > 0, got {capacity_ah}, {r0_factor}"
+            )
+        self.capacity_ah = capacity_ah
+        model = getattr(self, "model", None)
+        if isinstance(model, TheveninModel):
+            model.capacity_ah = capacity_ah
+            model.r0_factor = r0_factor
+
+    def rest_ocv_v(self, current_a: float, voltage_v: float, temp_c) -> float:
+        """The OCV a rest's ``voltage_v`` reads, by what this estimator's model knows of what is
+        left of the relaxation; without a model, the voltage itself."""
+        return voltage_v
 
     def reset_soc(self, soc: float, soc_std: float) -> None:
         """Re-initialize to a pack at rest at ``soc`` (keeps the time base)."""

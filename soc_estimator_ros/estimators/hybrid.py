@@ -196,6 +196,10 @@ class Hybrid(T2rcUkf):
         super()._inflate_soc_variance(var)
         self.count.inflate(var)
 
+    def set_health(self, capacity_ah: float, r0_factor: float) -> None:
+        super().set_health(capacity_ah, r0_factor)
+        self.count.capacity_ah = capacity_ah
+
     def _fuse_rest_ocv(self, current_a: float, voltage_v: float, temp_c) -> None:
         """A rest's OCV reading into the count, once per rest, inside the identified range.
 
@@ -206,10 +210,7 @@ class Hybrid(T2rcUkf):
         if self._rest_fused or self.model.extrapolation_c(temp_c) != 0.0:
             return
         self._rest_fused = True
-        x = self.kf.x[np.newaxis, :]
-        soc_u = float(self.kf.x[self.soc_index])
-        v_model = float(self._hx(x, current_a, temp_c)[0, 0])
-        ocv_v = voltage_v - (v_model - self.model.ocv.ocv(soc_u))
+        ocv_v = self.rest_ocv_v(current_a, voltage_v, temp_c)
         c = self.count.soc
         innovation = ocv_v - self.model.ocv.ocv(c)
         self.count.fuse(innovation, self.model.ocv.slope(c), float(self.tuning["ocv_std_v"]) ** 2)

@@ -200,6 +200,14 @@ class T2rcUkf(FilterpyState, Estimator):
     def _hx(self, xs: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
         return self.model.terminal_voltage_batch(xs, current_a, temp_c, self.z_soc)[:, np.newaxis]
 
+    def rest_ocv_v(self, current_a: float, voltage_v: float, temp_c) -> float:
+        """``voltage_v`` less what the model adds to the OCV curve at the present state (the
+        branches' remaining relaxation, the surface lag, the temperature offset): the voltage
+        the curve shows at the filter's SoC."""
+        x = self.kf.x[np.newaxis, : self.model.dim_x]
+        v_model = float(self.model.terminal_voltage_batch(x, current_a, temp_c, self.z_soc)[0])
+        return voltage_v - (v_model - self.model.ocv.ocv(float(self.kf.x[self.soc_index])))
+
     def _process_noise(self, dt_s: float) -> np.ndarray:
         q = self.tuning["q_diag"]
         if q is not getattr(self, "_q_key", None):  # diag(q) built once per tuning value

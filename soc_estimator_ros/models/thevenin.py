@@ -229,6 +229,9 @@ class TheveninModel:
         #: The temperatures (degC) inside which the tables are used as identified.
         self.trusted_c = (temps[0] - margin, temps[-1] + margin)
         self._factors: dict[float, float] = {}
+        #: The learned factor on ``R_0`` (``health/``: ageing, another pack), on top of the
+        #: tables and their temperature law; 1.0 is the file's model, bit for bit.
+        self.r0_factor = 1.0
         # Without Ea the factor is always 1: the hot paths skip the call (no per-step cost).
         self._arrhenius = params.extrapolation.activation_energy_j_per_mol != 0.0
 
@@ -262,6 +265,14 @@ class TheveninModel:
         return f
 
     # -- parameters --------------------------------------------------------------------------
+    def r0_ohm(self, soc: float, temperature_c: float | None = None) -> float:
+        """``R_0`` in ohms at ``soc`` and ``temperature_c``: the table, its temperature law and
+        the learned :attr:`r0_factor`."""
+        r = self.params.r0_ohm.at(soc, temperature_c)
+        if self._arrhenius:
+            r *= self.resistance_factor(temperature_c)
+        return r * self.r0_factor
+
     def series_drop_v(
         self, soc: float, current_a: float, temperature_c: float | None = None
     ) -> float:
@@ -270,6 +281,8 @@ class TheveninModel:
         drop = current_a * self.params.r0_ohm.at(soc, temperature_c)
         if f != 1.0:
             drop *= f
+        if self.r0_factor != 1.0:
+            drop *= self.r0_factor
         kin = self.params.kinetic
         if kin is not None and current_a != 0.0:
             i0 = kin.i0_a.at(soc, temperature_c)
@@ -286,6 +299,8 @@ class TheveninModel:
         drop = current_a * self.params.r0_ohm.at_array(soc, temperature_c)
         if f != 1.0:
             drop = drop * f
+        if self.r0_factor != 1.0:
+            drop = drop * self.r0_factor
         kin = self.params.kinetic
         if kin is not None and current_a != 0.0:
             i0 = kin.i0_a.at_array(soc, temperature_c)
@@ -418,6 +433,8 @@ class TheveninModel:
         drop = current_a * self.params.r0_ohm.at_each(soc, temps)
         if f is not None:
             drop = drop * f  # x 1.0 inside the range: the same value as no factor
+        if self.r0_factor != 1.0:
+            drop = drop * self.r0_factor
         kin = self.params.kinetic
         if kin is not None:
             i0 = kin.i0_a.at_each(soc, temps)

@@ -30,7 +30,7 @@ from ..params import BatteryParams, load_battery_params
 from ..recordings import read_recording
 from ..resources import BUNDLED_FILES, bundled_file
 from ..runtime import RuntimeConfig
-from ..series import RUNTIME_COLUMNS, BatterySeries, EstimateSeries, RuntimeSeries
+from ..series import HEALTH_COLUMNS, RUNTIME_COLUMNS, BatterySeries, EstimateSeries, RuntimeSeries
 from ..tracking import GateConfig, Sample, Tracker, TrackerConfig, Verdict
 from ..units import CurrentSign
 
@@ -138,7 +138,8 @@ def track_series_runtime(
     """:func:`track_series` and the runtime monitor over the run (its predictions NaN when the
     tracker makes none; FULL either way)."""
     n = len(series)
-    rt = {k: np.full(n, math.nan) for k in RUNTIME_COLUMNS}
+    rt = {k: np.full(n, math.nan) for k in (*RUNTIME_COLUMNS, *HEALTH_COLUMNS)}
+    health = tracker.health
     full = np.zeros(n, dtype=bool)
     report: dict[str, float] | None = None
     soc = np.full(n, math.nan)
@@ -178,8 +179,13 @@ def track_series_runtime(
             for name in RUNTIME_COLUMNS:
                 rt[name][k] = report[name]
         full[k] = tracker.runtime.full
+        if health is not None:
+            rt["capacity_ah"][k], rt["r0_factor"][k] = health.capacity_ah, health.r0_factor
         if progress is not None and (k + 1) % every == 0:
             progress(k + 1, n)
+    tracker.finish()
+    if health is not None and n:  # the end of the run may have read a last rest
+        rt["capacity_ah"][n - 1], rt["r0_factor"][n - 1] = health.capacity_ah, health.r0_factor
     estimates = EstimateSeries(
         estimator=tracker.estimator.name,
         t_s=np.asarray(series.t_s, dtype=float),

@@ -130,7 +130,7 @@ def steady_voltage_v(
     if lag is not None:
         for g, soc_max in zip(lag.gain_soc_per_a, lag.soc_max, strict=True):
             z = z + np.where(soc <= soc_max, g * i, 0.0)
-    v = model.ocv.ocv_array(soc - z) - i * p.r0_ohm.at_array(soc, temperature_c)
+    v = model.ocv.ocv_array(soc - z) - i * p.r0_ohm.at_array(soc, temperature_c) * model.r0_factor
     if p.kinetic is not None:
         i0 = p.kinetic.i0_a.at_array(soc, temperature_c)
         v = v - p.kinetic.a_v.at_array(soc, temperature_c) * np.arcsinh(i / i0)
@@ -192,7 +192,10 @@ def _terminal(
     """:meth:`TheveninModel.terminal_voltage`, elementwise, plus ``bias_v``."""
     p = model.params
     z_soc = sum(z) if z else 0.0
-    v = model.ocv.ocv_array(soc - z_soc) - i * p.r0_ohm.at_array(soc, temperature_c)
+    v = (
+        model.ocv.ocv_array(soc - z_soc)
+        - i * p.r0_ohm.at_array(soc, temperature_c) * model.r0_factor
+    )
     if p.kinetic is not None:
         i0 = p.kinetic.i0_a.at_array(soc, temperature_c)
         v = v - p.kinetic.a_v.at_array(soc, temperature_c) * np.arcsinh(i / i0)

@@ -32,6 +32,12 @@ What it owns, besides the estimator and the gate:
   window, and a time to empty, time to full and state of power every ``predict_period_s``).
   A CC-CV charge detected at its end recalibrates the SoC to 1 through :meth:`reset_soc`.
 * **Stale input**: :meth:`carried_forward` is the last SoC with its std grown over the silence.
+* **Health** (``health/``): every accepted sample also goes to a
+  :class:`~soc_estimator_ros.health.HealthMonitor` (``TrackerConfig.health``), which learns
+  the full capacity and a factor on ``R_0``; what it learns is handed to the estimator
+  (``Estimator.set_health``), and to every estimator that takes over (a switch, a recovery).
+  A CC-CV end is one of its anchors. :meth:`finish` ends a run (a rest still going is an
+  anchor).
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ import numpy as np
 
 from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
 from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
+from ..health import HealthMonitor, HealthState
 from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
 from ..units import NS_PER_S, SECONDS_PER_HOUR
@@ -127,6 +134,9 @@ class TrackerConfig:
         ocv_voltage_std_v: voltage uncertainty when a voltage is read as an OCV (V).
         rebase_after_s: steady time a backward jump must persist before re-anchoring (s).
         runtime: the runtime monitor's settings (``runtime/monitor.py``).
+        health: learn the battery's health (``health/``) and hand it to the estimator. Off by
+            default until its rest readings are validated (docs/architecture.md): every
+            estimator then runs on the file's capacity and resistances, as before.
     """
 
     estimator: str = DEFAULT_ESTIMATOR
@@ -135,6 +145,7 @@ class TrackerConfig:
     ocv_voltage_std_v: float = 0.05
     rebase_after_s: float = 2.0
     runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
+    health: bool = False
 
     def __post_init__(self) -> None:
         init = self.initial_soc
@@ -159,6 +170,7 @@ class Tracker:
         *,
         resume: ResumeFn | None = None,
         steady_clock: Callable[[], float] = time.monotonic,
+        health: HealthState | None = None,
     ) -> None:
         self.battery = battery
         self.config = config or TrackerConfig()
@@ -188,6 +200,11 @@ class Tracker:
         self._intervals: list[float] = []
         self._period_s: float | None = None
         self.runtime = RuntimeMonitor(battery, self.config.runtime)
+        #: The health monitor (None with ``TrackerConfig.health`` off); ``health`` resumes it.
+        self.health: HealthMonitor | None = (
+            HealthMonitor(battery, health) if self.config.health else None
+        )
+        self._apply_health()
 
     # -- the estimation step ------------------------------------------------------------------
     def process(
@@ -241,6 +258,10 @@ class Tracker:
         if t_prev is not None:
             self._count_missing(t_s - t_prev)
         self.samples_used += 1
+        if self.health is not None and self.health.update(
+            t_s, s.stamp_ns / NS_PER_S, s.current_a, s.voltage_v, temp, est.soc
+        ):
+            self._apply_health()
         est, notices, report = self.runtime.update(
             t_s,
             s.stamp_ns,
@@ -260,6 +281,8 @@ class Tracker:
 
     def _recalibrate(self, soc: float, soc_std: float) -> Estimate:
         """Reset the SoC (the runtime monitor's FULL) and return the estimate it leaves."""
+        if self.health is not None and self.health.full():
+            self._apply_health()
         self.reset_soc(soc, soc_std)
         last = self.estimator.last
         assert last is not None
@@ -403,12 +426,37 @@ class Tracker:
         soc, var = old.soc, old.soc_var
         new.start_from(old.t_last_s, soc, var, old.current_last_a)
         self.estimator = new
+        self._apply_health()
         old_name, self.estimator_name = self.estimator_name, name
         self.revision += 1
         return Event(
             Level.INFO,
             f"switched estimator {old_name} -> {name} at SoC {soc:.4f} (std {math.sqrt(var):.4f})",
         )
+
+    # -- health -------------------------------------------------------------------------------
+    def _apply_health(self) -> None:
+        """Hand what the health monitor learned to the estimator (a no-op on the file's values:
+        an estimator on the file's capacity and factor 1 computes exactly as without)."""
+        if self.health is None:
+            return
+        capacity_ah, r0_factor = self.health.learned()
+        if capacity_ah != self.estimator.capacity_ah or r0_factor != 1.0:
+            self.estimator.set_health(capacity_ah, r0_factor)
+
+    def finish(self) -> None:
+        """The run ends (a replay's last sample, a shutdown): a rest still going is read."""
+        if self.health is not None and self.health.finish():
+            self._apply_health()
+            self.revision += 1
+
+    def new_pack(self, serial_number: str = "") -> None:
+        """Another pack (a new serial number, the reset service): health from the file again."""
+        if self.health is None:
+            return
+        self.health.reset(serial_number)
+        self.estimator.set_health(self.battery.capacity_ah, 1.0)
+        self.revision += 1
 
     def _recover(self, exc: Exception) -> Event:
         """Rebuild the estimator from its last good estimate after an exception in step()."""
@@ -419,6 +467,7 @@ class Tracker:
         new = make_estimator(self.estimator_name, self.battery, soc, max(math.sqrt(var), 1e-3))
         new.start_from(old.t_last_s, soc, var, old.current_last_a)
         self.estimator = new
+        self._apply_health()
         return Event(
             Level.ERROR,
             f"{self.estimator_name} failed on a sample ({type(exc).__name__}: {exc}); "
@@ -450,5 +499,5 @@ class Tracker:
             return soc, math.sqrt(var), 0.0
         silent = max(now_steady_s - self.last_accept_steady_s, 0.0)
         gap_std = self.estimator.time_policy.gap_current_std_a
-        grown = gap_std * silent / (SECONDS_PER_HOUR * self.battery.capacity_ah)
+        grown = gap_std * silent / (SECONDS_PER_HOUR * self.estimator.capacity_ah)
         return soc, math.sqrt(min(var + grown * grown, MAX_SOC_VAR)), silent

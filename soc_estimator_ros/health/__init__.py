@@ -1,0 +1,20 @@
+"""Battery health, learned online: full capacity, a factor on ``R_0``, state of health.
+
+``HealthMonitor`` (``monitor.py``) runs beside the estimator; ``capacity.py`` holds the
+weighted total-least-squares fit of the capacity, ``resistance.py`` the ``R_0`` factor's
+filter. No ROS here.
+"""
+
+from .capacity import CapacityEstimator, CapacityPair, fit_capacity
+from .monitor import HealthMonitor, HealthState
+from .resistance import ResistanceFactor, step_observation
+
+__all__ = [
+    "CapacityEstimator",
+    "CapacityPair",
+    "HealthMonitor",
+    "HealthState",
+    "ResistanceFactor",
+    "fit_capacity",
+    "step_observation",
+]

@@ -1,0 +1,63 @@
+"""Health learning: the capacity's WTLS fit, the R_0 factor's filter, the model's factor."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from soc_estimator_ros.health import CapacityEstimator, CapacityPair, ResistanceFactor, fit_capacity
+from soc_estimator_ros.health.resistance import step_observation
+from soc_estimator_ros.params import load_battery_params
+from soc_estimator_ros.resources import bundled_file
+
+
+def test_wtls_recovers_a_known_capacity_from_noisy_pairs() -> None:
+    rng = np.random.default_rng(7)
+    q_true = 4.2
+    est = CapacityEstimator(5.0, (0.5) ** 2)  # a prior 19 % off, 10 % std
+    for _ in range(12):
+        ds_true = rng.uniform(0.3, 0.8)
+        pair = CapacityPair(
+            charge_ah=q_true * ds_true + rng.normal(0.0, 0.02),
+            charge_var_ah2=0.02**2,
+            soc_drop=ds_true + rng.normal(0.0, 0.01),
+            soc_drop_var=0.01**2,
+        )
+        est.add(pair)
+    # 12 pairs of 1 % SoC noise over ds ~0.55: the fit's own std is ~0.02 Ah; 4 sigma.
+    assert abs(est.capacity_ah - q_true) < 4.0 * est.capacity_std_ah
+    assert est.capacity_std_ah < 0.05
+
+
+def test_no_pairs_keeps_the_prior() -> None:
+    assert fit_capacity([], 5.0, 0.25) == (5.0, 0.25)
+
+
+def test_resistance_factor_learns_a_grown_r0_and_rejects_outliers() -> None:
+    rng = np.random.default_rng(3)
+    f_true, r0 = 1.5, 0.014
+    rf = ResistanceFactor(1.0, 0.3**2, 0.0)
+    for _ in range(200):
+        di = rng.choice([-10.0, 10.0])
+        measured = -f_true * r0 * di + rng.normal(0.0, 0.004)
+        model = -rf.factor * r0 * di  # the model's answer at its present factor
+        obs, var = step_observation(rf.factor, model, measured, di, r0, 0.004, 0.05, 0.05)
+        rf.update(obs, var)
+    # 200 steps of 0.14 V with 4 mV noise and a 5 % model error: std ~0.004; 5 sigma.
+    assert abs(rf.factor - f_true) < 0.02
+    assert not rf.update(rf.factor + 50.0 * math.sqrt(rf.var + 0.01), 0.01)
+    assert rf.rejected == 1
+
+
+def test_factor_one_is_the_files_model_bit_for_bit() -> None:
+    model = load_battery_params(bundled_file("sla")).thevenin_model()
+    x = np.array([[0.6, 0.01, 0.02], [0.3, 0.0, -0.01]])
+    before = model.terminal_voltage_batch(x, 12.0, 25.0)
+    model.r0_factor = 1.0
+    assert np.array_equal(before, model.terminal_voltage_batch(x, 12.0, 25.0))
+    model.r0_factor = 2.0
+    r0 = model.params.r0_ohm.at(0.6, 25.0)
+    assert model.r0_ohm(0.6, 25.0) == 2.0 * r0
+    # Doubling R_0 lowers the voltage under 12 A by exactly 12 A x R_0 (1e-12: float rounding).
+    assert abs(before[0] - model.terminal_voltage_batch(x, 12.0, 25.0)[0] - 12.0 * r0) < 1e-12
