@@ -440,9 +440,10 @@ class Tracker:
         an estimator on the file's capacity and factor 1 computes exactly as without)."""
         if self.health is None:
             return
-        capacity_ah, r0_factor = self.health.learned()
-        if capacity_ah != self.estimator.capacity_ah or r0_factor != 1.0:
-            self.estimator.set_health(capacity_ah, r0_factor)
+        learned = self.health.learned()
+        factor = getattr(getattr(self.estimator, "model", None), "r0_factor", 1.0)
+        if learned != (self.estimator.capacity_ah, factor):
+            self.estimator.set_health(*learned)
 
     def finish(self) -> None:
         """The run ends (a replay's last sample, a shutdown): a rest still going is read."""
