@@ -294,11 +294,6 @@ class Estimator(ABC):
             model.capacity_ah = capacity_ah
             model.r0_factor = r0_factor
 
-    def rest_ocv_v(self, current_a: float, voltage_v: float, temp_c) -> float:
-        """The OCV a rest's ``voltage_v`` reads, by what this estimator's model knows of what is
-        left of the relaxation; without a model, the voltage itself."""
-        return voltage_v
-
     def reset_soc(self, soc: float, soc_std: float) -> None:
         """Re-initialize to a pack at rest at ``soc`` (keeps the time base)."""
         if not (0.0 <= soc <= 1.0) or not soc_std > 0.0:
