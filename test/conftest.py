@@ -3,18 +3,31 @@
 The environment is set at import time, before any test module can import rclpy. Parallel runs
 on one machine (and the pytest-xdist workers of one run) get different domain ids, so their
 nodes never hear each other; ``SOC_TEST_ROS_DOMAIN_ID`` pins the id when needed.
+
+Bags are read once per test run: ``read_battery_bag`` (rosbags deserializes each message in
+Python, 4 s for a 100 000-sample bag) keeps what it read of a bag in a directory the run's
+workers share, and a later read of the same unchanged bag, with the same topics, in any worker,
+loads that (a fresh copy each time). The first read of every bag is the reader's own; a read
+that fails is never kept. ``SOC_TEST_BAG_CACHE=off`` reads every time.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
+import pickle
+import shutil
 import sys
+import tempfile
 import zlib
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+
+import soc_estimator_ros.recordings as _recordings
+import soc_estimator_ros.recordings.bags as _bags
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 BAGS_DIR = REPO_ROOT / "bags"
@@ -73,3 +86,58 @@ def load_benchmark(name: str) -> ModuleType:
     sys.modules[name] = module  # as an import does: a dataclass there looks its module up
     spec.loader.exec_module(module)
     return module
+
+
+# -- bags read once per run (module docstring) -------------------------------------------------
+_BAG_CACHE_ENV = "SOC_TEST_BAG_CACHE"
+_read_battery_bag = _bags.read_battery_bag
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The controller (or a run without xdist) makes the shared directory; the workers it
+    starts afterwards inherit its path in the environment."""
+    if os.environ.get(_BAG_CACHE_ENV) or hasattr(config, "workerinput"):
+        return
+    path = tempfile.mkdtemp(prefix="soc-test-bags-")
+    os.environ[_BAG_CACHE_ENV] = path
+    config.stash[_cache_dir_key] = path
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    path = config.stash.get(_cache_dir_key, None)
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
+        os.environ.pop(_BAG_CACHE_ENV, None)
+
+
+_cache_dir_key = pytest.StashKey[str]()
+
+
+def _read_battery_bag_once(
+    path: Path | str,
+    state_topic: str = _bags.STATE_TOPIC,
+    reference_topic: str | None = _bags.REFERENCE_TOPIC,
+) -> _recordings.BatterySeries:
+    """``read_battery_bag``, its result kept per (bag files' names, sizes, mtimes; topics)."""
+    cache = os.environ.get(_BAG_CACHE_ENV, "off")
+    bag = Path(path)
+    if cache == "off" or not bag.is_dir():
+        return _read_battery_bag(path, state_topic, reference_topic)
+    files = sorted((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in bag.iterdir())
+    key = repr((str(bag.resolve()), state_topic, reference_topic, files))
+    kept = Path(cache) / (hashlib.sha256(key.encode()).hexdigest() + ".pickle")
+    try:
+        return pickle.loads(kept.read_bytes())
+    except (FileNotFoundError, EOFError, pickle.UnpicklingError):
+        pass
+    series = _read_battery_bag(path, state_topic, reference_topic)
+    fd, tmp = tempfile.mkstemp(dir=cache, suffix=".tmp")
+    with os.fdopen(fd, "wb") as fh:
+        pickle.dump(series, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(tmp, kept)  # atomic: a worker reading it meanwhile sees all or nothing
+    return series
+
+
+# Both names: read_recording looks the package's up at each call; test modules import either.
+_bags.read_battery_bag = _read_battery_bag_once
+_recordings.read_battery_bag = _read_battery_bag_once

@@ -116,11 +116,13 @@ def test_hybrid_converges_from_a_wrong_start(bag: Path, offset: float) -> None:
 )
 def test_rc_kf_reproduces_the_paper_finding() -> None:
     """Seed 000: RC+KF is usable on SLA (2.2 % MAE there) and fails on LFP's flat OCV."""
-    sla = [run(b, "rc_kf", 0.0)[0] for b in FIELD_RUNS if chemistry_of(b) == "sla"]
-    lfp = [run(b, "rc_kf", 0.0)[0] for b in FIELD_RUNS if chemistry_of(b) == "lfp"]
-    if not sla or not lfp:
+    chemistries = {chemistry_of(b) for b in FIELD_RUNS}
+    if not {"sla", "lfp"} <= chemistries:
         pytest.skip("needs field runs of both chemistries")
+    sla = [run(b, "rc_kf", 0.0)[0] for b in FIELD_RUNS if chemistry_of(b) == "sla"]
     sla_mae = max(a.mae for a in sla)
-    lfp_mae = max(a.mae for a in lfp)
     assert sla_mae <= 0.05, sla  # usable: within about twice the paper's 2.2 %
+    # The LFP runs only once SLA passes (today it does not: the xfail's reason).
+    lfp = [run(b, "rc_kf", 0.0)[0] for b in FIELD_RUNS if chemistry_of(b) == "lfp"]
+    lfp_mae = max(a.mae for a in lfp)
     assert lfp_mae > sla_mae, (sla, lfp)  # and clearly worse on LFP's plateau
