@@ -187,7 +187,11 @@ def test_estimators_see_the_same_pack(name: str, file: str, cells: int, rated_ah
     np.testing.assert_allclose(soc_s, soc_b, rtol=0.0, atol=atol)
 
 
-@pytest.mark.parametrize("file", sorted(p.name for p in CONFIG.glob("*_*ah*.yaml")))
+# The battery files (the node's ROS parameters file lives beside them).
+BATTERY_FILES = sorted(p.name for p in CONFIG.glob("*.yaml") if "schema_version" in p.read_text())
+
+
+@pytest.mark.parametrize("file", BATTERY_FILES)
 def test_the_files_own_pack_is_the_file(file: str) -> None:
     b = load_battery_params(CONFIG / file)
     assert scale_battery(b) == b
@@ -224,6 +228,16 @@ def test_a_scaled_file_names_its_pack_and_keeps_the_rest() -> None:
 @pytest.mark.parametrize(("file", "cells", "rated_ah"), CASES)
 def test_round_trip_through_the_file_form(file: str, cells: int, rated_ah: float) -> None:
     s = scale_battery(load_battery_params(CONFIG / file), cells, rated_ah)
+    assert parse_battery_params(battery_params_to_dict(s), "scaled") == s
+
+
+def test_one_cell_file_scaled_to_a_pack_round_trips() -> None:
+    """The NCR18650PF cell as a 4S 2P pack (n = 4, q = 2): its one-cell hybrid tuning scaled."""
+    b = load_battery_params(CONFIG / "li_ion_ncr18650pf.yaml")
+    s = scale_battery(b, 4, 5.8)
+    assert s.filters["hybrid"]["ocv_std_v"] == 4.0 * b.filters["hybrid"]["ocv_std_v"]
+    assert s.filters["hybrid"]["rest_current_a"] == 2.0 * b.filters["hybrid"]["rest_current_a"]
+    assert s.filters["hybrid"]["r"] == 16.0 * b.filters["hybrid"]["r"]
     assert parse_battery_params(battery_params_to_dict(s), "scaled") == s
 
 
