@@ -22,7 +22,8 @@ echo "test.sh: mypy"
 
 echo "test.sh: pytest"
 status=0
-.venv/bin/python -m pytest -p no:cacheprovider -q --durations=10 -n "${SOC_TEST_JOBS:-2}" "$@" ||
+.venv/bin/python -m pytest -p no:cacheprovider -q --durations=10 -n "${SOC_TEST_JOBS:-2}" \
+  --dist loadgroup "$@" ||
   status=$?
 if [ "$status" -eq 5 ]; then
   failed+=("pytest (no tests ran)")

@@ -13,6 +13,7 @@ that fails is never kept. ``SOC_TEST_BAG_CACHE=off`` reads every time.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import os
@@ -23,11 +24,14 @@ import tempfile
 import zlib
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
+import numpy as np
 import pytest
 
 import soc_estimator_ros.recordings as _recordings
 import soc_estimator_ros.recordings.bags as _bags
+from soc_estimator_ros.series import BatterySeries
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 BAGS_DIR = REPO_ROOT / "bags"
@@ -73,6 +77,46 @@ def bag_path(name: str) -> Path:
     if not (path / "metadata.yaml").is_file():
         pytest.skip(f"bundled bag {name!r} not present in {BAGS_DIR}")
     return path
+
+
+#: The xdist group of the tests that read :func:`hybrid_on_field_run` (``--dist loadgroup`` in
+#: scripts/test.sh runs a group on one worker, so each run is computed once per suite).
+HYBRID_FIELD_RUNS = pytest.mark.xdist_group("hybrid_field_runs")
+
+
+@functools.cache
+def hybrid_on_field_run(name: str) -> tuple[BatterySeries, np.ndarray, np.ndarray, Any]:
+    """The default estimator on a whole bundled field run from its reference start, through
+    the tracker (the node's path; no runtime predictions): the recording, the SoC and the
+    low-battery level at every sample, and the level thresholds. Shared by test_accuracy and
+    test_levels_field_runs."""
+    from soc_estimator_ros.params import load_battery_params  # noqa: PLC0415
+    from soc_estimator_ros.replay.run import battery_file_for, tracker_config  # noqa: PLC0415
+    from soc_estimator_ros.tracking import GateConfig, Sample, Tracker  # noqa: PLC0415
+
+    series = _recordings.read_recording(bag_path(name))
+    battery = load_battery_params(battery_file_for(series))
+    tracker = Tracker(
+        battery,
+        GateConfig.from_limits(battery.limits),
+        tracker_config(series, "hybrid", "ref", runtime=False),
+    )
+    n = len(series)
+    soc = np.full(n, np.nan)
+    level = np.zeros(n, dtype=int)
+    for k in range(n):
+        r = tracker.process(
+            Sample(
+                int(series.stamp_ns[k]),
+                float(series.current_a[k]),
+                float(series.voltage_v[k]),
+                float(series.temperature_c[k]),
+            )
+        )
+        assert r.estimate is not None, (name, k, r.verdict)
+        soc[k] = r.estimate.soc
+        level[k] = int(tracker.runtime.level)
+    return series, soc, level, tracker.runtime.thresholds
 
 
 def load_benchmark(name: str) -> ModuleType:

@@ -14,13 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import bag_path
+from conftest import HYBRID_FIELD_RUNS, hybrid_on_field_run
 
-from soc_estimator_ros.params import load_battery_params
-from soc_estimator_ros.recordings import read_recording
-from soc_estimator_ros.replay.run import battery_file_for, tracker_config
 from soc_estimator_ros.runtime import BatteryLevel
-from soc_estimator_ros.tracking import GateConfig, Sample, Tracker
 
 FIELD_RUNS = [
     f"{chem}_field_run_{run}"
@@ -30,31 +26,10 @@ FIELD_RUNS = [
 
 
 @pytest.mark.slow
+@HYBRID_FIELD_RUNS
 @pytest.mark.parametrize("bag", FIELD_RUNS)
 def test_no_trip_on_a_sag_shorter_than_the_debounce_and_no_clear(bag: str) -> None:
-    series = read_recording(bag_path(bag))
-    battery = load_battery_params(battery_file_for(series))
-    tracker = Tracker(
-        battery,
-        GateConfig.from_limits(battery.limits),
-        tracker_config(series, "hybrid", "ref", runtime=False),
-    )
-    n = len(series)
-    soc = np.full(n, np.nan)
-    level = np.zeros(n, dtype=int)
-    for k in range(n):
-        r = tracker.process(
-            Sample(
-                int(series.stamp_ns[k]),
-                float(series.current_a[k]),
-                float(series.voltage_v[k]),
-                float(series.temperature_c[k]),
-            )
-        )
-        assert r.estimate is not None
-        soc[k] = r.estimate.soc
-        level[k] = int(tracker.runtime.level)
-    th = tracker.runtime.thresholds
+    series, soc, level, th = hybrid_on_field_run(bag)
     t = series.t_s
     assert np.all(np.diff(level) >= 0), "a level cleared during a discharge mission"
     absorbed = {}
