@@ -5,7 +5,8 @@
   capacity, ``power_supply_status`` (:func:`supply_status`: CHARGING above the charging
   threshold, as Nav2's docking reads the current; DISCHARGING beyond the idle dead band; FULL
   after a detected CC-CV end; UNKNOWN while the input is stale), ``power_supply_health`` from
-  the battery's limits, technology from its chemistry. :func:`bridge_state` is what a
+  the battery's limits (DEAD too below the learned state of health's ``soh_dead``),
+  technology from its chemistry. :func:`bridge_state` is what a
   bridge publishes (the bundled bags' input, the live replay's input). Both return a
   :class:`BatteryStateFields`; ``recordings.bags`` turns it into a rosbags message and
   ``node.ros_messages`` into an rclpy one, field by field.
@@ -27,7 +28,7 @@ The message constants (status, health, technology) are read from the Jazzy messa
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,6 +36,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 from .estimators.base import Estimate
+from .health.monitor import HEALTH_FIELDS
 from .params import BatteryParams, Limits
 from .units import ros_current_from_core
 
@@ -160,14 +162,19 @@ def estimate_state(
     location: str = "",
     serial_number: str = "",
     frame_id: str = "battery",
+    capacity_ah: float | None = None,
+    soh: float | None = None,
 ) -> BatteryStateFields:
     """The node's ``battery/soc`` message for a SoC estimate (``current_a`` in the core's sign).
 
-    ``percentage`` is the SoC (0..1), ``charge`` SoC x ``capacity_ah``, ``capacity`` the file's
-    ``capacity_ah``, ``design_capacity`` its ``nominal_capacity_ah``; the status is
-    :func:`supply_status`'s. ``stale``: the input went silent; the SoC is the last one carried
-    forward (never NaN: Nav2's ``IsBatteryLow`` never counts a NaN as low), status and health
-    UNKNOWN, and voltage, current and temperature NaN (not measured now).
+    ``percentage`` is the SoC (0..1), ``charge`` SoC x ``capacity``, ``capacity`` the learned
+    full capacity ``capacity_ah`` (``health/``; None: the file's ``capacity_ah``),
+    ``design_capacity`` the file's ``nominal_capacity_ah``; the status is
+    :func:`supply_status`'s, the health :func:`supply_health`'s, and DEAD where that is GOOD
+    but the state of health ``soh`` is below the file's ``health.soh_dead`` (seed 001: 0.6,
+    end of life). ``stale``: the input went silent; the SoC is the last one carried forward
+    (never NaN: Nav2's ``IsBatteryLow`` never counts a NaN as low), status and health UNKNOWN,
+    and voltage, current and temperature NaN (not measured now).
     """
     current_ros = ros_current_from_core(current_a)
     if stale:
@@ -175,14 +182,17 @@ def estimate_state(
         health = HEALTH_UNKNOWN
     else:
         health = supply_health(voltage_v, temperature_c, battery.limits)
+        if health == HEALTH_GOOD and soh is not None and soh < battery.health.soh_dead:
+            health = HEALTH_DEAD
+    capacity = battery.capacity_ah if capacity_ah is None else capacity_ah
     return BatteryStateFields(
         stamp_ns=int(stamp_ns),
         voltage=float(voltage_v),
         current=float(current_ros),
         temperature=float(temperature_c),
         percentage=float(soc),
-        charge=float(soc * battery.capacity_ah),
-        capacity=float(battery.capacity_ah),
+        charge=float(soc * capacity),
+        capacity=float(capacity),
         design_capacity=float(battery.nominal_capacity_ah),
         power_supply_status=supply_status(
             current_ros, idle_current_a, charging_current_a, full=full, stale=stale
@@ -245,19 +255,21 @@ ESTIMATE_FIELDS = (
 )
 
 
-def estimate_labels(state_names: Sequence[str]) -> list[str]:
-    """Labels of the estimate vector for an estimator's state names."""
+def estimate_labels(state_names: Sequence[str], health: bool = False) -> list[str]:
+    """Labels of the estimate vector for an estimator's state names; with ``health`` the
+    learned health follows (``health.<name>``, :data:`~soc_estimator_ros.health.HEALTH_FIELDS`)."""
     names = list(state_names)
     return [
         *ESTIMATE_FIELDS,
         *(f"x.{n}" for n in names),
         *(f"P.{a}.{b}" for a in names for b in names),
+        *((f"health.{k}" for k in HEALTH_FIELDS) if health else ()),
     ]
 
 
-def layout_label(state_names: Sequence[str]) -> str:
+def layout_label(state_names: Sequence[str], health: bool = False) -> str:
     """``layout.dim[0].label`` of the estimate vector."""
-    return "fields:" + ",".join(estimate_labels(state_names))
+    return "fields:" + ",".join(estimate_labels(state_names, health))
 
 
 def estimate_row(
@@ -277,11 +289,15 @@ def estimate_row(
     )
 
 
-def estimate_vector(stamp_s: float, est: Estimate) -> list[float]:
-    """The estimate vector of one :class:`Estimate`."""
-    return estimate_row(
+def estimate_vector(
+    stamp_s: float, est: Estimate, health: Mapping[str, float] | None = None
+) -> list[float]:
+    """The estimate vector of one :class:`Estimate`, and the learned ``health``
+    (``HealthMonitor.fields()``) when given."""
+    row = estimate_row(
         stamp_s, est.soc, est.soc_var, est.voltage_pred_v, est.innovation_v, est.nis, est.x, est.p
     )
+    return row + ([float(health[k]) for k in HEALTH_FIELDS] if health is not None else [])
 
 
 def decode_estimate(msg: Any) -> dict[str, float]:

@@ -27,6 +27,7 @@ class BatterySeries:
         design_capacity_ah: the bridge's design capacity (NaN if not sent).
         technology: ``power_supply_technology`` of the first sample.
         reference_capacity_ah: capacity behind the reference SoC, or None.
+        serial_number: the pack's ``serial_number`` in the first sample ("" if none).
         repeated_stamps: rows dropped on reading because they repeated the previous row's
             time (a CSV from a cell tester logs a record at both sides of a step boundary).
     """
@@ -40,6 +41,7 @@ class BatterySeries:
     design_capacity_ah: float = math.nan
     technology: int = 0
     reference_capacity_ah: float | None = None
+    serial_number: str = ""
     repeated_stamps: int = 0
 
     def __len__(self) -> int:

@@ -6,10 +6,11 @@ filter. No ROS here.
 """
 
 from .capacity import CapacityEstimator, CapacityPair, fit_capacity
-from .monitor import HealthMonitor, HealthState
+from .monitor import HEALTH_FIELDS, HealthMonitor, HealthState
 from .resistance import ResistanceFactor, step_observation
 
 __all__ = [
+    "HEALTH_FIELDS",
     "CapacityEstimator",
     "CapacityPair",
     "HealthMonitor",

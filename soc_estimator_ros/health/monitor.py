@@ -46,6 +46,8 @@ REST_FILTER_TAU_S = 5.0
 APPLY_SIGMA = 2.0
 #: An anchor whose SoC std is at least this tells nothing (on a plateau): it is not taken.
 ANCHOR_MAX_SOC_STD = 0.1
+#: What :meth:`HealthMonitor.fields` reports (diagnostics, the estimate vector), in order.
+HEALTH_FIELDS = ("capacity_ah", "capacity_std_ah", "soh", "r0_factor", "r0_factor_std")
 
 
 @dataclass(frozen=True)
@@ -151,6 +153,16 @@ class HealthMonitor:
     @property
     def pairs_used(self) -> int:
         return len(self.capacity.pairs)
+
+    def fields(self) -> dict[str, float]:
+        """The learned values now, by :data:`HEALTH_FIELDS` (SOH: capacity over the file's)."""
+        return {
+            "capacity_ah": self.capacity_ah,
+            "capacity_std_ah": self.capacity_std_ah,
+            "soh": self.soh,
+            "r0_factor": self.r0_factor,
+            "r0_factor_std": self.r0_factor_std,
+        }
 
     def state(self) -> HealthState:
         """What to save now."""

@@ -15,6 +15,8 @@ key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
 * WARN: extrapolating: the temperature lies outside the range the battery file's model was
   identified at (plus its margin; the model's resistances then follow Arrhenius, and the hybrid
   weighs the voltage less);
+* WARN / ERROR: with health learned (``learn_health``), the state of health below the battery
+  file's ``health.soh_warn`` / ``health.soh_dead`` (seed 001's end of life, 0.6);
 * WARN: the hybrid's guard (``estimators/guard.py``) weighs its voltage model below
   :data:`MODEL_WEIGHT_WARN`: the filter and the charge count disagree beyond the count's error
   budget, and the published SoC follows the count.
@@ -150,6 +152,13 @@ class Diagnostics:
                     "follows the charge count",
                 )
             )
+        health = tr.health
+        if health is not None:
+            soh, hs = health.soh, tr.battery.health
+            if soh < hs.soh_warn:
+                severity = Level.ERROR if soh < hs.soh_dead else Level.WARN
+                limit = hs.soh_dead if soh < hs.soh_dead else hs.soh_warn
+                problems.append((severity, f"state of health {soh:.2f} below {limit:g}"))
         level = max((lvl for lvl, _ in problems), default=Level.OK)
         message = "; ".join(m for _, m in problems) or "OK"
         nan = math.nan
@@ -207,6 +216,13 @@ class Diagnostics:
                 ("soc_model", float(hybrid.x[hybrid.soc_index])),
                 ("soc_count", charge_count.soc),
                 ("soc_count_std", math.sqrt(charge_count.var)),
+            ]
+        if health is not None:
+            values += [(f"health_{k}", v) for k, v in health.fields().items()]
+            values += [
+                ("health_pairs_used", health.pairs_used),
+                ("health_pairs_rejected", health.pairs_rejected),
+                ("health_serial_number", health.serial_number or "none"),
             ]
         values += extra or []
         return Report(level, message, [(k, _text(v)) for k, v in values])

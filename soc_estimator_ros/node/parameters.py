@@ -163,6 +163,13 @@ PARAMETERS: tuple[ParamSpec, ...] = (
         "'none' = no persistence",
     ),
     ParamSpec(
+        "learn_health",
+        False,
+        "learn the pack's full capacity and R0 factor online (health/), publish them "
+        "(BatteryState.capacity, power_supply_health DEAD below health.soh_dead, diagnostics, "
+        "soc_estimate) and keep them in the state file across restarts",
+    ),
+    ParamSpec(
         "save_period_s",
         5.0,
         "period (s) of state saves; 0 = only on shutdown",

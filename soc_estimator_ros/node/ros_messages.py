@@ -3,6 +3,7 @@ message type, used by the node and by the live replay's bridge."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict
 
 from sensor_msgs.msg import BatteryState
@@ -38,13 +39,18 @@ def battery_state_msg(fields: BatteryStateFields, header: Header | None = None) 
     return msg
 
 
-def estimate_msg(stamp_s: float, est: Estimate) -> Float64MultiArray:
-    """The labelled estimate vector (``messages.py``) as a ``Float64MultiArray``."""
-    n = len(estimate_labels(est.state_names))
+def estimate_msg(
+    stamp_s: float, est: Estimate, health: Mapping[str, float] | None = None
+) -> Float64MultiArray:
+    """The labelled estimate vector (``messages.py``) as a ``Float64MultiArray``, with the
+    learned ``health`` (``HealthMonitor.fields()``) when given."""
+    with_health = health is not None
+    n = len(estimate_labels(est.state_names, with_health))
     arr = Float64MultiArray()
-    arr.layout.dim = [MultiArrayDimension(label=layout_label(est.state_names), size=n, stride=n)]
+    label = layout_label(est.state_names, with_health)
+    arr.layout.dim = [MultiArrayDimension(label=label, size=n, stride=n)]
     arr.layout.data_offset = 0
-    arr.data = estimate_vector(stamp_s, est)
+    arr.data = estimate_vector(stamp_s, est, health)
     return arr
 
 

@@ -62,7 +62,12 @@ from ..tracking import (
     TrackerConfig,
     Verdict,
 )
-from ..tracking.persistence import remove_stale_temp_files, resume_decision, save_state
+from ..tracking.persistence import (
+    remove_stale_temp_files,
+    resume_decision,
+    resume_health,
+    save_state,
+)
 from ..units import NS_PER_S, CurrentSign, core_current_from, core_current_from_ros, stamp_to_ns
 from .diagnostics import Diagnostics
 from .parameters import (
@@ -131,6 +136,7 @@ class SocEstimatorNode(Node):
         self._last_serial = ""
         inputs = self._create_topics()
         self.create_service(Trigger, "~/reset_soc_from_ocv", self._on_reset_from_ocv)
+        self.create_service(Trigger, "~/reset_health", self._on_reset_health)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0, self._publish_diagnostics, clock=steady)
         self._publish_rate_hz: float = p("publish_rate_hz")
@@ -199,7 +205,12 @@ class SocEstimatorNode(Node):
             ocv_voltage_std_v=p("ocv_voltage_std_v"),
             rebase_after_s=p("stale_timeout_s"),
             runtime=runtime,
+            health=p("learn_health"),
         )
+        health = None
+        if config.health and self.state_file is not None:
+            health, reason = resume_health(self.state_file, self.battery.name)
+            self.get_logger().info(reason)
         resume = None
         if self.state_file is not None:
             path, max_age_s, battery = self.state_file, p("resume_max_age_s"), self.battery.name
@@ -208,7 +219,7 @@ class SocEstimatorNode(Node):
                 return resume_decision(path, now_s, max_age_s, battery)
 
         try:
-            return Tracker(self.battery, gate, config, resume=resume)
+            return Tracker(self.battery, gate, config, resume=resume, health=health)
         except ValueError as exc:
             raise NodeConfigError(f"estimator = {name!r}: {exc}") from exc
 
@@ -303,6 +314,10 @@ class SocEstimatorNode(Node):
             result = self.tracker.process(sample, now_ns=now_ns, clock_ns=clock_ns)
             self._log(result.events)
             if result.accepted:
+                pack = self.tracker.pack_serial(self._param("serial_number") or serial_number)
+                if pack is not None:
+                    self._log((pack,))
+            if result.accepted:
                 self._last_header = header
                 self._last_location, self._last_serial = location, serial_number
                 self._pending_publish = True
@@ -342,6 +357,7 @@ class SocEstimatorNode(Node):
             return
         self._pending_publish = False
         self._published_seq += 1
+        capacity_ah, soh = self._learned_health()
         fields = estimate_state(
             self.battery,
             est.soc,
@@ -354,12 +370,24 @@ class SocEstimatorNode(Node):
             full=self.tracker.runtime.full,
             location=self._param("location") or self._last_location,
             serial_number=self._param("serial_number") or self._last_serial,
+            capacity_ah=capacity_ah,
+            soh=soh,
         )
         self._soc_pub.publish(battery_state_msg(fields, self._last_header))
-        self._est_pub.publish(estimate_msg(last.stamp_ns / NS_PER_S, est))
+        health = self.tracker.health
+        self._est_pub.publish(
+            estimate_msg(last.stamp_ns / NS_PER_S, est, None if health is None else health.fields())
+        )
         if self._pending_runtime is not None:
             self._runtime_pub.publish(runtime_msg(self._pending_runtime))
             self._pending_runtime = None
+
+    def _learned_health(self) -> tuple[float | None, float | None]:
+        """``estimate_state``'s learned capacity and SOH (None, None with learn_health off)."""
+        health = self.tracker.health
+        if health is None:
+            return None, None
+        return health.capacity_ah, health.soh
 
     def stale_for(self, now_steady_s: float) -> float | None:
         """Seconds without an accepted sample beyond ``stale_timeout_s`` (None: not stale,
@@ -380,6 +408,7 @@ class SocEstimatorNode(Node):
             header = Header()
             header.stamp = self.get_clock().now().to_msg()
             header.frame_id = self._last_header.frame_id if self._last_header else "battery"
+            capacity_ah, soh = self._learned_health()
             fields = estimate_state(
                 self.battery,
                 self.tracker.soc,
@@ -389,6 +418,8 @@ class SocEstimatorNode(Node):
                 stale=True,
                 location=self._param("location") or self._last_location,
                 serial_number=self._param("serial_number") or self._last_serial,
+                capacity_ah=capacity_ah,
+                soh=soh,
             )
             self._soc_pub.publish(battery_state_msg(fields, header))
 
@@ -433,6 +464,25 @@ class SocEstimatorNode(Node):
             response.message += (
                 f" (warning: under load, {last.current_a:.2f} A; the voltage is not a rest OCV)"
             )
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_reset_health(
+        self, request: Trigger.Request, response: Trigger.Response
+    ) -> Trigger.Response:
+        """Another pack: the learned health starts again from the battery file's values."""
+        del request
+        with self._lock:
+            if self.tracker.health is None:
+                response.success = False
+                response.message = "health is not learned (learn_health is false)"
+                return response
+            self.tracker.new_pack(self._param("serial_number") or self._last_serial)
+        response.success = True
+        response.message = (
+            f"health reset to the battery file's: capacity {self.battery.capacity_ah:g} Ah, "
+            "R0 factor 1"
+        )
         self.get_logger().info(response.message)
         return response
 
@@ -500,16 +550,7 @@ class SocEstimatorNode(Node):
     def saved_state(self) -> SavedState | None:
         """What would be saved now (None before the first accepted sample)."""
         with self._lock:
-            last = self.tracker.last_sample
-            if last is None:
-                return None
-            return SavedState(
-                soc=self.tracker.soc,
-                soc_var=self.tracker.soc_var,
-                stamp_s=last.stamp_ns / NS_PER_S,
-                estimator=self.tracker.estimator_name,
-                battery=self.battery.name,
-            )
+            return self.tracker.saved_state()
 
     def save_now(self, force: bool = False) -> bool:
         """Save the state if it changed since the last save (or ``force``); False if not."""

@@ -75,10 +75,13 @@ def read_battery_bag(
                     raise RecordingError(p, f"{topic} is {topics[topic]}, expected {BATTERY_STATE}")
             wanted = [c for c in reader.connections if c.topic in (state_topic, reference_topic)]
             states: list[tuple[int, float, float, float, float, int]] = []
+            serial_number = ""
             refs: dict[int, tuple[float, float]] = {}
             for conn, _, raw in reader.messages(connections=wanted):
                 msg: Any = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == state_topic:
+                    if not states:
+                        serial_number = str(msg.serial_number)
                     states.append(
                         (
                             _stamp_ns(msg),
@@ -114,6 +117,7 @@ def read_battery_bag(
         design_capacity_ah=states[0][4],
         technology=states[0][5],
         reference_capacity_ah=ref_capacity,
+        serial_number=serial_number,
     )
 
 

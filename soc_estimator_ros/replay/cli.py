@@ -84,6 +84,18 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="progress bar on stderr (default: when stderr is a terminal)",
     )
+    ap.add_argument(
+        "--learn-health",
+        action="store_true",
+        help="learn the pack's capacity and R0 factor (the node's learn_health)",
+    )
+    ap.add_argument(
+        "--state",
+        type=Path,
+        help="state file: start from the health it holds (if any, for this battery), write it "
+        "back at the end; the inputs are replayed in order as one battery's life "
+        "(implies --learn-health)",
+    )
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     return ap
 
@@ -121,6 +133,8 @@ def _check(args: argparse.Namespace, inputs: list[Path], estimators: list[str]) 
             raise ReplayError("--output-bag needs one input")
         if args.output_bag.exists():
             raise ReplayError(f"--output-bag {args.output_bag}: exists; give a new directory")
+    if args.state is not None and (len(estimators) > 1 or args.live):
+        raise ReplayError("--state needs one estimator, offline (not --live)")
     if args.rate is not None and (not args.live or not args.rate > 0):
         raise ReplayError("--rate needs --live and a value > 0")
 
@@ -150,9 +164,11 @@ def main(argv: list[str] | None = None) -> int:
             live_rate=args.rate,
             extras=extras,
             runtime=bool(args.output or args.plot or args.plot_dir),
+            health=args.learn_health or args.state is not None,
+            state=args.state,
         )
         jobs = [replace(base, path=p) for p in inputs]
-        if len(jobs) > 1 and args.jobs > 1 and not args.live:
+        if len(jobs) > 1 and args.jobs > 1 and not args.live and args.state is None:
             with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
                 done = list(pool.map(_job, jobs))
         else:

@@ -29,7 +29,7 @@ from ..recordings import (
     float64_array_message,
     write_bag,
 )
-from ..series import BatterySeries, EstimateSeries
+from ..series import HEALTH_COLUMNS, BatterySeries, EstimateSeries
 from .run import ReplayError, ReplayResult
 
 #: The error panel's axis never reaches past this (points); estimators beyond are marked.
@@ -155,6 +155,7 @@ CSV_COLUMNS = (
     "voltage_pred_v",
     "current_a",
     *CSV_RUNTIME_COLUMNS,
+    *HEALTH_COLUMNS,
 )
 
 
@@ -195,11 +196,13 @@ def _plot_time_to_empty(ax: Any, series: BatterySeries, results: list[ReplayResu
 
 def write_csv(path: Path, result: ReplayResult) -> None:
     """:data:`CSV_COLUMNS` per sample: the estimate, then the runtime monitor's latest
-    prediction (NaN before the first, or when the replay made none; ``inf``: never)."""
+    prediction (NaN before the first, or when the replay made none; ``inf``: never), then the
+    learned health (NaN without ``--learn-health``)."""
     e = result.estimates
     n = len(e.t_s)
     rt = result.runtime
-    runtime = [rt[c] if rt is not None else np.full(n, math.nan) for c in CSV_RUNTIME_COLUMNS]
+    columns = (*CSV_RUNTIME_COLUMNS, *HEALTH_COLUMNS)
+    runtime = [rt[c] if rt is not None else np.full(n, math.nan) for c in columns]
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_COLUMNS)

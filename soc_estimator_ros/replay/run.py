@@ -11,6 +11,11 @@ estimate (status = the rejection reason); rows before the first accepted sample 
 ``runtime=True`` its latest prediction, made as the node makes them (every second of sample
 time, its default settings); without, no prediction is made (NaN: they are only needed for
 the CSV and the plots).
+
+With a state file (``state``, ``soc_replay --state FILE``) the tracker learns the battery's
+health (``health/``), starts from the health saved in the file (whatever its age; the SoC is
+not resumed: the replay's start is ``initial_soc``) and writes it back at the end, as the
+node's persistence does, so missions replayed in order with one file are one battery's life.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from ..resources import BUNDLED_FILES, bundled_file
 from ..runtime import RuntimeConfig
 from ..series import HEALTH_COLUMNS, RUNTIME_COLUMNS, BatterySeries, EstimateSeries, RuntimeSeries
 from ..tracking import GateConfig, Sample, Tracker, TrackerConfig, Verdict
+from ..tracking.persistence import resume_health, save_state
 from ..units import CurrentSign
 
 #: Std of a given (numeric or reference) initial SoC.
@@ -79,6 +85,8 @@ class ReplayJob:
     live: bool = False
     extras: dict[str, str] = field(default_factory=dict)
     runtime: bool = False
+    health: bool = False
+    state: Path | None = None
 
     @property
     def name(self) -> str:
@@ -99,13 +107,18 @@ def battery_file_for(series: BatterySeries) -> Path:
 
 
 def tracker_config(
-    series: BatterySeries, estimator: str, initial_soc: str, runtime: bool = False
+    series: BatterySeries,
+    estimator: str,
+    initial_soc: str,
+    runtime: bool = False,
+    health: bool = False,
 ) -> TrackerConfig:
     """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text);
-    ``runtime``: predictions every second as the node makes them (else none)."""
+    ``runtime``: predictions every second as the node makes them (else none); ``health``:
+    learn the battery's health."""
     rt = RuntimeConfig() if runtime else RuntimeConfig(predict_period_s=0.0)
     if initial_soc == "ocv":
-        return TrackerConfig(estimator=estimator, initial_soc="ocv", runtime=rt)
+        return TrackerConfig(estimator=estimator, initial_soc="ocv", runtime=rt, health=health)
     if initial_soc == "ref":
         if series.soc_ref is None or not math.isfinite(series.soc_ref[0]):
             raise ReplayError("--initial-soc ref: the recording has no reference SoC at its start")
@@ -120,7 +133,11 @@ def tracker_config(
         if not 0.0 <= value <= 1.0:
             raise ReplayError(f"--initial-soc {initial_soc}: expected a fraction in [0, 1]")
     return TrackerConfig(
-        estimator=estimator, initial_soc=value, initial_soc_std=INITIAL_SOC_STD, runtime=rt
+        estimator=estimator,
+        initial_soc=value,
+        initial_soc_std=INITIAL_SOC_STD,
+        runtime=rt,
+        health=health,
     )
 
 
@@ -152,6 +169,7 @@ def track_series_runtime(
     p = np.full((n, dim, dim), math.nan)
     status: list[str] = []
     start = ""
+    pack = tracker.pack_serial(series.serial_number)
     every = max(1, n // 50)
     last = None
     for k in range(n):
@@ -202,7 +220,8 @@ def track_series_runtime(
         state_names=tracker.estimator.state_names,
     )
     runtime = RuntimeSeries(rt, full, tracker.battery.limits.soc_min)
-    return estimates, start or "no sample accepted", runtime
+    start = start or "no sample accepted"
+    return estimates, f"{pack.message}; {start}" if pack is not None else start, runtime
 
 
 def replay_estimator(
@@ -213,19 +232,40 @@ def replay_estimator(
     name: str,
     progress: Progress | None = None,
     runtime: bool = False,
+    health: bool = False,
+    state: Path | None = None,
 ) -> ReplayResult:
     """One estimator over a recording, offline, behind a tracker (with the runtime
-    monitor's predictions when ``runtime``)."""
+    monitor's predictions when ``runtime``; learning the health when ``health`` or with a
+    ``state`` file, from whose health it starts and to which it writes it back)."""
+    saved, health_start = None, ""
+    if state is not None:
+        saved, health_start = resume_health(state, battery.name)
     tracker = Tracker(
         battery,
         GateConfig.from_limits(battery.limits),
-        tracker_config(series, estimator, initial_soc, runtime),
+        tracker_config(series, estimator, initial_soc, runtime, health or state is not None),
+        health=saved,
     )
     estimates, start, rt = track_series_runtime(series, tracker, progress)
+    if state is not None:
+        save_health(state, tracker)
+        start = f"{health_start}; {start}"
     counts = {v.value: c for v, c in tracker.gate.counts.items() if c and v is not Verdict.ACCEPTED}
     if tracker.gate.temperature_ignored:
         counts["temperature_ignored"] = tracker.gate.temperature_ignored
     return ReplayResult(name, estimates, score(series, estimates), start, counts, rt)
+
+
+def save_health(path: Path, tracker: Tracker) -> None:
+    """Write ``tracker``'s state, its health with it, to ``path`` (``ReplayError`` if not)."""
+    state = tracker.saved_state()
+    if state is None:
+        return
+    try:
+        save_state(path, state)
+    except OSError as exc:
+        raise ReplayError(f"--state {path}: cannot be written ({exc})") from exc
 
 
 def score(series: BatterySeries, estimates: EstimateSeries) -> Accuracy | None:
@@ -261,7 +301,15 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
             result = ReplayResult(job.name, estimates, score(series, estimates), start, {}, rt)
         else:
             result = replay_estimator(
-                series, battery, estimator, job.initial_soc, job.name, progress, job.runtime
+                series,
+                battery,
+                estimator,
+                job.initial_soc,
+                job.name,
+                progress,
+                job.runtime,
+                job.health,
+                job.state,
             )
         if not result.finite:
             raise ReplayError(

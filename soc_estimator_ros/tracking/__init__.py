@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from .gate import REJECTIONS, GateConfig, InputGate, Verdict
 from .pairing import PairedSample, ScalarPairer
-from .persistence import ResumeDecision, SavedState, StateFileError
+from .persistence import ResumeDecision, SavedState, StateFileError, resume_health
 from .tracker import Event, Level, Sample, StepResult, Tracker, TrackerConfig
 
 __all__ = [
@@ -26,4 +26,5 @@ __all__ = [
     "Tracker",
     "TrackerConfig",
     "Verdict",
+    "resume_health",
 ]

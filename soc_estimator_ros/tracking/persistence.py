@@ -8,6 +8,14 @@ The state file is a small YAML mapping::
     stamp_s: 1778152330.1  # header stamp of the last accepted sample (s, ROS time)
     estimator: hybrid
     battery: AJC 12 V 5 Ah SLA (seed 000)
+    health:                # optional: what health/ learned of this pack (HealthState)
+      capacity_ah: 4.71
+      capacity_var_ah2: 0.0049
+      r0_factor: 1.32
+      r0_factor_var: 0.0025
+      serial_number: SLA-0042
+      stamp_s: 1778152330.1
+      current_a: 0.35
 
 :func:`save_state` writes it atomically: a temporary file in the same directory is written,
 flushed and ``fsync``-ed, then ``os.replace``-d over the old file, and the directory is
@@ -17,7 +25,9 @@ flushed and ``fsync``-ed, then ``os.replace``-d over the old file, and the direc
 problem). :func:`resume_decision` says whether a saved state may be resumed from at a given
 time: only when it exists, is valid, belongs to the same battery and is younger than
 ``resume_max_age_s``; otherwise it returns the reason, which the node logs before it falls back
-to an OCV initialization. A file that exists but cannot be used is set aside
+to an OCV initialization. The health is long-lived: :func:`resume_health` takes it from a file
+of the same battery whatever its age (a pack keeps its capacity over a week in the shed; its
+SoC may not). A file that exists but cannot be used is set aside
 (:func:`set_aside`: renamed ``<name>.unusable``) so the next start does not meet it again, and
 temporary files a kill left behind during a save are removed at start
 (:func:`remove_stale_temp_files`).
@@ -36,6 +46,7 @@ from typing import Any
 import yaml
 
 from ..errors import SocEstimatorError
+from ..health import HealthState
 
 FORMAT_VERSION = 1
 
@@ -59,6 +70,7 @@ class SavedState:
         stamp_s: header stamp of the last sample behind the estimate (s).
         estimator: estimator name.
         battery: battery name (``BatteryParams.name``).
+        health: what the health monitor learned (None: health learning off).
     """
 
     soc: float
@@ -66,10 +78,11 @@ class SavedState:
     stamp_s: float
     estimator: str
     battery: str
+    health: HealthState | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The YAML mapping written to the file."""
-        return {
+        out: dict[str, Any] = {
             "format": FORMAT_VERSION,
             "soc": float(self.soc),
             "soc_var": float(self.soc_var),
@@ -77,6 +90,24 @@ class SavedState:
             "estimator": str(self.estimator),
             "battery": str(self.battery),
         }
+        if self.health is not None:
+            h = self.health
+            out["health"] = {
+                **{k: float(getattr(h, k)) for k in _HEALTH_NUMBERS},
+                "serial_number": str(h.serial_number),
+            }
+        return out
+
+
+#: The numbers of a saved :class:`HealthState` (NaN allowed only for the last sample's).
+_HEALTH_NUMBERS = (
+    "capacity_ah",
+    "capacity_var_ah2",
+    "r0_factor",
+    "r0_factor_var",
+    "stamp_s",
+    "current_a",
+)
 
 
 def _fsync_dir(directory: Path) -> None:
@@ -158,6 +189,25 @@ def _number(path: Path, raw: dict[str, Any], key: str) -> float:
     return float(value)
 
 
+def _health(path: Path, raw: Any) -> HealthState:
+    """The ``health`` mapping of a state file, validated."""
+    if not isinstance(raw, dict):
+        raise StateFileError(path, "health: expected a mapping")
+    values: dict[str, float] = {}
+    for key in _HEALTH_NUMBERS:
+        value = raw.get(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise StateFileError(path, f"health.{key} = {value!r}: expected a number")
+        values[key] = float(value)
+    for key in ("capacity_ah", "capacity_var_ah2", "r0_factor", "r0_factor_var"):
+        if not (math.isfinite(values[key]) and values[key] > 0.0):
+            raise StateFileError(path, f"health.{key} = {values[key]!r}: expected a number > 0")
+    serial = raw.get("serial_number", "")
+    if not isinstance(serial, str):
+        raise StateFileError(path, f"health.serial_number = {serial!r}: expected a string")
+    return HealthState(serial_number=serial, **values)
+
+
 def _text(path: Path, raw: dict[str, Any], key: str) -> str:
     value = raw.get(key)
     if not isinstance(value, str) or not value:
@@ -196,6 +246,7 @@ def load_state(path: Path | str) -> SavedState:
         stamp_s=_number(p, raw, "stamp_s"),
         estimator=_text(p, raw, "estimator"),
         battery=_text(p, raw, "battery"),
+        health=_health(p, raw["health"]) if "health" in raw else None,
     )
 
 
@@ -253,4 +304,25 @@ def resume_decision(
         state,
         f"resuming from {path}: SoC {state.soc:.4f} (std {math.sqrt(state.soc_var):.4f}) saved "
         f"{max(age_s, 0.0):.1f} s before the first sample by {state.estimator}",
+    )
+
+
+def resume_health(path: Path | str, battery: str) -> tuple[HealthState | None, str]:
+    """The health saved in ``path`` for ``battery``, whatever the file's age, and why (for the
+    log): None when the file is absent or unusable (left in place: :func:`resume_decision`
+    sets it aside), holds no health, or belongs to another battery."""
+    try:
+        state = load_state(path)
+    except StateFileError as exc:
+        return None, f"no saved health: {exc}"
+    if state.battery != battery:
+        return None, f"saved health in {path} is for battery {state.battery!r}, not {battery!r}"
+    if state.health is None:
+        return None, f"no saved health in {path}"
+    h = state.health
+    return h, (
+        f"health from {path}: capacity {h.capacity_ah:.3f} Ah "
+        f"(std {math.sqrt(h.capacity_var_ah2):.3f}), R0 factor {h.r0_factor:.3f} "
+        f"(std {math.sqrt(h.r0_factor_var):.3f})"
+        + (f", pack {h.serial_number!r}" if h.serial_number else "")
     )

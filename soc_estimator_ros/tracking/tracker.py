@@ -57,7 +57,7 @@ from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
 from ..units import NS_PER_S, SECONDS_PER_HOUR
 from .gate import GateConfig, InputGate, Verdict
-from .persistence import ResumeDecision
+from .persistence import ResumeDecision, SavedState
 
 #: Minimum SoC std used for (re-)initializations (an OCV on a steep curve is not exact).
 MIN_INIT_SOC_STD = 1e-3
@@ -459,6 +459,24 @@ class Tracker:
         self.estimator.set_health(self.battery.capacity_ah, 1.0)
         self.revision += 1
 
+    def pack_serial(self, serial_number: str) -> Event | None:
+        """The input's ``serial_number``: the health's pack takes a first one; another one
+        than the health's is another pack (:meth:`new_pack`, and the event says so)."""
+        h = self.health
+        if h is None or not serial_number or serial_number == h.serial_number:
+            return None
+        if not h.serial_number:
+            h.serial_number = serial_number
+            self.revision += 1
+            return None
+        old = h.serial_number
+        self.new_pack(serial_number)
+        return Event(
+            Level.WARNING,
+            f"pack serial number {old!r} -> {serial_number!r}: another pack, its health "
+            "starts from the battery file's values",
+        )
+
     def _recover(self, exc: Exception) -> Event:
         """Rebuild the estimator from its last good estimate after an exception in step()."""
         old = self.estimator
@@ -486,6 +504,21 @@ class Tracker:
     def soc_var(self) -> float:
         """The SoC variance now, at most ``MAX_SOC_VAR`` (what a state file may hold)."""
         return min(self.estimator.soc_var, MAX_SOC_VAR)
+
+    def saved_state(self) -> SavedState | None:
+        """What a state file keeps now (``persistence.py``), the learned health with it; None
+        before the first accepted sample."""
+        last = self.last_sample
+        if last is None:
+            return None
+        return SavedState(
+            soc=self.soc,
+            soc_var=self.soc_var,
+            stamp_s=last.stamp_ns / NS_PER_S,
+            estimator=self.estimator_name,
+            battery=self.battery.name,
+            health=None if self.health is None else self.health.state(),
+        )
 
     def carried_forward(self, now_steady_s: float) -> tuple[float, float, float]:
         """The last SoC carried over a silence of the input: (SoC, std, silent seconds).

@@ -40,6 +40,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
+from soc_estimator_ros.health import HealthState  # noqa: E402
 from soc_estimator_ros.messages import (  # noqa: E402
     RUNTIME_FIELDS,
     decode_estimate,
@@ -316,6 +317,61 @@ def test_state_is_saved_on_shutdown_and_resumed(make_harness, tmp_path, battery)
     out = decode_estimate(c.est[-1])["soc"]
     assert out == pytest.approx(fallback.step(0.0, 0.0, 12.5).soc, abs=1e-12)
     assert abs(out - 0.3) > 0.1  # not the stale saved SoC
+
+
+def test_learned_health_is_published_and_survives_a_restart(make_harness, tmp_path, battery):
+    """learn_health: BatteryState.capacity is the learned capacity (design_capacity the file's
+    nominal), power_supply_health DEAD below health.soh_dead, the health in diagnostics and
+    the estimate vector; a restart takes it from the state file, whatever the file's age; the
+    reset service and another serial number start again from the file's values."""
+    state_file = tmp_path / "health.yaml"
+    week_s = 7 * 86400
+    # A pack at SOH 0.55 (below the file's soh_dead 0.6), R_0 x 1.4, a week old.
+    worn = HealthState(
+        0.55 * battery.capacity_ah, 0.01, 1.4, 0.01, "SIM-1", (T0 - week_s * S) * 1e-9
+    )
+    save_state(state_file, SavedState(0.9, 1e-4, worn.stamp_s, "hybrid", battery.name, worn))
+    a = make_harness(learn_health=True, initial_soc="resume", state_file=str(state_file))
+    a.send([state_msg(T0 + k * S // 10, 12.3, 2.0) for k in range(20)])
+    msg = a.soc[-1]
+    assert msg.capacity == pytest.approx(worn.capacity_ah, rel=1e-6)  # float32 field
+    assert msg.design_capacity == pytest.approx(battery.nominal_capacity_ah, rel=1e-6)
+    assert msg.charge == pytest.approx(msg.percentage * worn.capacity_ah, rel=1e-5)
+    assert msg.power_supply_health == BatteryState.POWER_SUPPLY_HEALTH_DEAD
+    assert abs(msg.percentage - 0.9) > 0.05  # the week-old SoC was not resumed
+    status = a.node.diagnostic_status()
+    assert status.level == b"\x02" and "state of health 0.55 below 0.6" in status.message
+    values = {kv.key: kv.value for kv in status.values}
+    assert float(values["health_soh"]) == pytest.approx(0.55, abs=1e-6)
+    assert values["health_serial_number"] == "SIM-1"
+    vector = decode_estimate(a.est[-1])
+    assert vector["health.capacity_ah"] == pytest.approx(worn.capacity_ah)
+    assert vector["health.r0_factor"] == pytest.approx(1.4, abs=0.05)  # steps may move it
+    a.close()  # saves
+    kept = load_state(state_file).health
+    assert kept is not None and kept.capacity_ah == pytest.approx(worn.capacity_ah)
+
+    b = make_harness(learn_health=True, initial_soc="resume", state_file=str(state_file))
+    b.send([state_msg(T0 + 3 * S + k * S // 10, 12.3, 2.0) for k in range(5)])
+    assert b.soc[-1].capacity == pytest.approx(worn.capacity_ah, rel=1e-6)
+    resp = b.trigger("reset_health")
+    assert resp.success and "reset to the battery file's" in resp.message
+    b.send([state_msg(T0 + 4 * S, 12.3, 2.0)])
+    assert b.soc[-1].capacity == pytest.approx(battery.capacity_ah, rel=1e-6)
+    assert b.soc[-1].power_supply_health == BatteryState.POWER_SUPPLY_HEALTH_GOOD
+    b.close()
+
+    save_state(state_file, SavedState(0.9, 1e-4, worn.stamp_s, "hybrid", battery.name, worn))
+    c = make_harness(learn_health=True, initial_soc="resume", state_file=str(state_file))
+    c.send([state_message(T0 + 5 * S, 12.3, 2.0, 25.0, 5.0, True, "ANOTHER-PACK")])
+    assert c.soc[-1].capacity == pytest.approx(battery.capacity_ah, rel=1e-6)
+    assert c.node.tracker.health is not None
+    assert c.node.tracker.health.serial_number == "ANOTHER-PACK"
+    off = make_harness(state_file=str(tmp_path / "off.yaml"))
+    off.send([state_msg(T0, 12.3, 2.0)])
+    assert off.soc[-1].capacity == pytest.approx(battery.capacity_ah, rel=1e-6)
+    assert "health.soh" not in decode_estimate(off.est[-1])
+    assert not off.trigger("reset_health").success
 
 
 def test_periodic_save(make_harness, tmp_path):

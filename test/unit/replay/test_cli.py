@@ -27,6 +27,7 @@ from soc_estimator_ros.recordings import (
 from soc_estimator_ros.replay.cli import main as replay_main
 from soc_estimator_ros.series import BatterySeries
 from soc_estimator_ros.tracking import TrackerConfig
+from soc_estimator_ros.tracking.persistence import load_state
 
 N = 3000
 
@@ -222,6 +223,8 @@ def test_csv_columns_contract(tmp_path, capsys):
         "time_to_empty_std_s",
         "time_to_full_s",
         "max_discharge_current_10s_a",
+        "capacity_ah",
+        "r0_factor",
     )
     doc = (REPO_ROOT / "docs" / "replay.md").read_text()
     assert all(f"`{c}`" in doc for c in CSV_COLUMNS)
@@ -246,3 +249,29 @@ def test_csv_columns_contract(tmp_path, capsys):
     changes = t[1:][np.diff(tte) != 0]
     assert np.all(np.diff(changes) >= 0.99)  # at most one prediction a second
     assert 0.9 * (t[-1] - t[0]) <= len(changes) + 1  # and about one every second
+    assert all(r["capacity_ah"] == r["r0_factor"] == "nan" for r in rows)  # health not learned
+
+
+def test_state_carries_the_learned_health_from_replay_to_replay(tmp_path, capsys):
+    """``--state FILE``: the health is learned, written back at the end, and the next replay
+    starts from it (not from the file's SoC); its CSV columns follow what is learned."""
+    src = write_excerpt(tmp_path / "run.csv")
+    state = tmp_path / "state.yaml"
+    est = tmp_path / "est.csv"
+    args = [str(src), "--params", str(_sla()), "--state", str(state), "--output", str(est)]
+    code, out, _ = run(args, capsys)
+    assert code == 0 and "no saved health" in out
+    first = load_state(state)
+    assert first.health is not None and first.battery == load_battery_params(_sla()).name
+    # One 5-minute run has no rest of 30 min: the capacity stays the file's prior; the
+    # R_0 factor may move (current steps), and the CSV's last row holds what was saved.
+    with est.open() as fh:
+        last = list(csv.DictReader(fh))[-1]
+    assert float(last["capacity_ah"]) == pytest.approx(first.health.capacity_ah, rel=1e-5)
+    assert float(last["r0_factor"]) == pytest.approx(first.health.r0_factor, rel=1e-5)
+    # (rel 1e-5: the CSV's 6 significant digits.)
+    code, out, _ = run(args, capsys)
+    assert code == 0 and f"health from {state}: capacity {first.health.capacity_ah:.3f} Ah" in out
+    assert "initial_soc=ocv" in out  # the SoC starts as without a state file
+    code, _, err = run([str(src), "--params", str(_sla()), "--state", str(state), "--all"], capsys)
+    assert code == 2 and "--state needs one estimator" in err

@@ -9,11 +9,13 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
+from soc_estimator_ros.health import HealthState
 from soc_estimator_ros.tracking.persistence import (
     SavedState,
     StateFileError,
     load_state,
     resume_decision,
+    resume_health,
     save_state,
 )
 
@@ -99,7 +101,8 @@ def test_state_file_is_plain_yaml(tmp_path: Path) -> None:
     path = tmp_path / "state.yaml"
     save_state(path, STATE)
     raw = yaml.safe_load(path.read_text())
-    assert raw == {"format": 1, **{k: getattr(STATE, k) for k in STATE.__dataclass_fields__}}
+    saved = {k: getattr(STATE, k) for k in STATE.__dataclass_fields__ if k != "health"}
+    assert raw == {"format": 1, **saved}  # health is written only when learned (below)
 
 
 def test_a_binary_state_file_is_one_line_and_is_set_aside(tmp_path: Path) -> None:
@@ -125,3 +128,61 @@ def test_temp_files_left_by_a_kill_are_removed(tmp_path: Path) -> None:
     other.write_text("")
     assert sorted(remove_stale_temp_files(path)) == sorted(left)
     assert path.exists() and other.exists() and not any(p.exists() for p in left)
+
+
+# -- health ----------------------------------------------------------------------------------
+HEALTH = HealthState(4.71, 0.0049, 1.32, 0.0025, "SLA-0042", STATE.stamp_s, 0.35)
+
+
+def test_health_round_trips_and_a_file_without_it_still_loads(tmp_path: Path) -> None:
+    path = tmp_path / "state.yaml"
+    with_health = SavedState(**{**STATE.__dict__, "health": HEALTH})
+    save_state(path, with_health)
+    assert load_state(path) == with_health  # every number as written (YAML repr is exact)
+    assert yaml.safe_load(path.read_text())["health"]["serial_number"] == "SLA-0042"
+    unknown = SavedState(**{**STATE.__dict__, "health": HealthState(5.0, 0.25, 1.0, 0.04)})
+    save_state(path, unknown)  # no last sample yet: NaN stamp and current
+    loaded = load_state(path).health
+    assert loaded is not None and loaded.capacity_ah == 5.0 and loaded.stamp_s != loaded.stamp_s
+    save_state(path, STATE)  # a file from before health: no health entry
+    assert "health" not in yaml.safe_load(path.read_text()) and load_state(path).health is None
+
+
+@pytest.mark.parametrize(
+    ("health", "problem"),
+    [
+        ("[1]", "health: expected a mapping"),
+        ("{capacity_ah: 0, capacity_var_ah2: 1, r0_factor: 1, r0_factor_var: 1, stamp_s: 1, "
+         "current_a: 0}", "health.capacity_ah"),
+        ("{capacity_ah: 5, capacity_var_ah2: 1, r0_factor: .nan, r0_factor_var: 1, stamp_s: 1, "
+         "current_a: 0}", "health.r0_factor"),
+        ("{capacity_ah: 5, capacity_var_ah2: 1, r0_factor: 1, r0_factor_var: 1, stamp_s: 1}",
+         "health.current_a"),
+        ("{capacity_ah: 5, capacity_var_ah2: 1, r0_factor: 1, r0_factor_var: 1, stamp_s: 1, "
+         "current_a: 0, serial_number: 7}", "serial_number"),
+    ],
+)  # fmt: skip
+def test_a_bad_health_entry_is_a_clear_error(tmp_path: Path, health: str, problem: str) -> None:
+    path = tmp_path / "state.yaml"
+    path.write_text(
+        "{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: 1, estimator: h, battery: b, "
+        f"health: {health}}}"
+    )
+    with pytest.raises(StateFileError, match=problem):
+        load_state(path)
+
+
+def test_health_resumes_whatever_its_age_for_the_same_battery_only(tmp_path: Path) -> None:
+    """The SoC of a week-old file is not resumed; its health is (a pack keeps its capacity)."""
+    path = tmp_path / "state.yaml"
+    save_state(path, SavedState(**{**STATE.__dict__, "health": HEALTH}))
+    week_s = 7 * 86400.0
+    assert not resume_decision(path, STATE.stamp_s + week_s, 3600.0, STATE.battery).resume
+    health, reason = resume_health(path, STATE.battery)
+    assert health == HEALTH and "capacity 4.710 Ah" in reason and "SLA-0042" in reason
+    other, reason = resume_health(path, "another pack")
+    assert other is None and "another pack" in reason
+    save_state(path, STATE)
+    assert resume_health(path, STATE.battery) == (None, f"no saved health in {path}")
+    missing, reason = resume_health(tmp_path / "none.yaml", STATE.battery)
+    assert missing is None and "no such file" in reason
