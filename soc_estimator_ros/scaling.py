@@ -328,3 +328,16 @@ def _scale_filters(
         entries = {**given, **defaults}
         out[block] = {k: _scale_entry(cls, block, k, v, f) for k, v in entries.items()}
     return out
+
+
+def scale_to_pack(
+    battery: BatteryParams, cells_in_series: int, capacity_ah: float
+) -> BatteryParams:
+    """:func:`scale_battery` with the node's and ``soc_replay``'s convention: 0 keeps the
+    file's value (``cells_in_series`` and ``capacity_ah`` parameters, ``--cells-in-series``,
+    ``--capacity-ah``)."""
+    return scale_battery(
+        battery,
+        cells_in_series if cells_in_series else None,
+        capacity_ah if capacity_ah else None,
+    )

@@ -80,6 +80,19 @@ PARAMETERS: tuple[ParamSpec, ...] = (
         "",
         "battery parameter file (YAML); empty = the bundled " + BUNDLED_FILES[DEFAULT_CHEMISTRY],
     ),
+    ParamSpec(
+        "cells_in_series",
+        0,
+        "cells in series of this pack: the battery file is scaled to it (docs/battery_files.md"
+        "); 0 = the file's",
+        int_range=(0, 1000),
+    ),
+    ParamSpec(
+        "capacity_ah",
+        0.0,
+        "rated capacity (Ah) of this pack: the battery file is scaled to it; 0 = the file's",
+        float_range=(0.0, 100000.0),
+    ),
     ParamSpec("state_topic", "battery/state", "input sensor_msgs/BatteryState topic"),
     ParamSpec("output_topic", "battery/soc", "output sensor_msgs/BatteryState topic"),
     ParamSpec(

@@ -51,6 +51,7 @@ from ..messages import estimate_state
 from ..params import BatteryParams, load_battery_params
 from ..resources import default_battery_file
 from ..runtime import LevelThresholds, RuntimeConfig, RuntimeReport
+from ..scaling import scale_to_pack
 from ..tracking import (
     Event,
     GateConfig,
@@ -120,7 +121,13 @@ class SocEstimatorNode(Node):
         self._lock = threading.RLock()
         p = self._param
         self.battery_file = p("battery_file") or str(default_battery_file())
-        self.battery: BatteryParams = load_battery_params(self.battery_file)
+        battery = load_battery_params(self.battery_file)
+        try:
+            self.battery: BatteryParams = scale_to_pack(
+                battery, p("cells_in_series"), p("capacity_ah")
+            )
+        except ValueError as exc:
+            raise NodeConfigError(f"cells_in_series / capacity_ah: {exc}") from exc
         self.state_file = self._state_file_path(p("state_file"))
         self.tracker = self._make_tracker()
         self._stale_vs_clock: bool = p("stale_vs_clock")

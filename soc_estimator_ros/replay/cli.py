@@ -85,6 +85,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="progress bar on stderr (default: when stderr is a terminal)",
     )
     ap.add_argument(
+        "--cells-in-series",
+        type=int,
+        default=0,
+        help="scale the battery file to a pack of this many cells in series "
+        "(docs/battery_files.md; 0: the file's)",
+    )
+    ap.add_argument(
+        "--capacity-ah",
+        type=float,
+        default=0.0,
+        help="scale the battery file to this rated capacity (Ah; 0: the file's)",
+    )
+    ap.add_argument(
         "--learn-health",
         action="store_true",
         help="learn the pack's capacity and R0 factor (the node's learn_health)",
@@ -133,8 +146,10 @@ def _check(args: argparse.Namespace, inputs: list[Path], estimators: list[str]) 
             raise ReplayError("--output-bag needs one input")
         if args.output_bag.exists():
             raise ReplayError(f"--output-bag {args.output_bag}: exists; give a new directory")
-    if args.state is not None and (len(estimators) > 1 or args.live):
-        raise ReplayError("--state needs one estimator, offline (not --live)")
+    if args.state is not None and len(estimators) > 1:
+        raise ReplayError("--state needs one estimator")
+    if args.live and (args.state is not None or args.learn_health):
+        raise ReplayError("--state and --learn-health replay offline (not --live)")
     if args.rate is not None and (not args.live or not args.rate > 0):
         raise ReplayError("--rate needs --live and a value > 0")
 
@@ -166,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
             runtime=bool(args.output or args.plot or args.plot_dir),
             health=args.learn_health or args.state is not None,
             state=args.state,
+            cells_in_series=args.cells_in_series,
+            capacity_ah=args.capacity_ah,
         )
         jobs = [replace(base, path=p) for p in inputs]
         if len(jobs) > 1 and args.jobs > 1 and not args.live and args.state is None:

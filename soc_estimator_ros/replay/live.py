@@ -24,7 +24,7 @@ import os
 import tempfile
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -57,6 +57,7 @@ from ..messages import STATUS_FULL, bridge_state, decode_estimate, decode_runtim
 from ..node.ros_messages import battery_state_msg  # noqa: E402
 from ..node.ros_node import SocEstimatorNode  # noqa: E402
 from ..series import (  # noqa: E402
+    HEALTH_COLUMNS,
     RUNTIME_COLUMNS,
     BatterySeries,
     EstimateSeries,
@@ -262,11 +263,13 @@ def replay_live(
     config: TrackerConfig,
     rate: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    node_params: Mapping[str, Any] | None = None,
 ) -> tuple[EstimateSeries, str, RuntimeSeries]:
     """Every sample of ``series`` through a live node; its estimates, the start it used, and
     its runtime predictions (``battery/runtime``) and FULL status (``battery/soc``).
 
-    The node starts as ``config`` says (``initial_soc``, its std, the estimator). Raises
+    The node starts as ``config`` says (``initial_soc``, its std, the estimator), with
+    ``node_params`` besides (``cells_in_series``, ``capacity_ah``). Raises
     ``RuntimeError`` when the node does not judge every sample within 30 s of its batch.
     """
     context = Context()
@@ -286,6 +289,7 @@ def replay_live(
                 qos_depth=1000,
                 state_file=str(Path(tmp) / "state.yaml"),
                 use_sim_time=True,
+                **(node_params or {}),
             )
             link = NodeLink(context, node, ns)
             try:
@@ -363,7 +367,9 @@ def runtime_from(link: NodeLink, series: BatterySeries, soc_empty: float) -> Run
         m.header.stamp.sec * NS_PER_S + m.header.stamp.nanosec: m.power_supply_status == STATUS_FULL
         for m in link.soc
     }
-    values = {k: np.full(n, np.nan) for k in RUNTIME_COLUMNS}
+    # The health columns stay NaN: a live replay does not learn health (soc_replay refuses
+    # --learn-health and --state with --live).
+    values = {k: np.full(n, np.nan) for k in (*RUNTIME_COLUMNS, *HEALTH_COLUMNS)}
     full = np.zeros(n, dtype=bool)
     last: dict[str, float] | None = None
     is_full = False

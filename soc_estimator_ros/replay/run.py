@@ -31,10 +31,11 @@ from ..errors import SocEstimatorError
 from ..estimators import ESTIMATORS
 from ..evaluation import Accuracy, accuracy
 from ..messages import chemistry_of_technology
-from ..params import BatteryParams, load_battery_params
+from ..params import BatteryParams, ParamFileError, load_battery_params
 from ..recordings import read_recording
 from ..resources import BUNDLED_FILES, bundled_file
 from ..runtime import RuntimeConfig
+from ..scaling import scale_to_pack
 from ..series import HEALTH_COLUMNS, RUNTIME_COLUMNS, BatterySeries, EstimateSeries, RuntimeSeries
 from ..tracking import GateConfig, Sample, Tracker, TrackerConfig, Verdict
 from ..tracking.persistence import resume_health, save_state
@@ -87,6 +88,8 @@ class ReplayJob:
     runtime: bool = False
     health: bool = False
     state: Path | None = None
+    cells_in_series: int = 0
+    capacity_ah: float = 0.0
 
     @property
     def name(self) -> str:
@@ -284,7 +287,14 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
 
     series = read_recording(job.path, job.topic, job.sign)
     battery_file = job.params or battery_file_for(series)
-    battery = load_battery_params(battery_file)
+    try:
+        battery = scale_to_pack(
+            load_battery_params(battery_file), job.cells_in_series, job.capacity_ah
+        )
+    except ParamFileError:
+        raise
+    except ValueError as exc:
+        raise ReplayError(f"--cells-in-series / --capacity-ah: {exc}") from exc
     results = []
     for estimator in job.estimators:
         if estimator not in ESTIMATORS:
@@ -296,7 +306,12 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
 
             config = tracker_config(series, estimator, job.initial_soc)
             estimates, start, rt = replay_live(
-                series, Path(battery_file).resolve(), config, job.live_rate, progress
+                series,
+                Path(battery_file).resolve(),
+                config,
+                job.live_rate,
+                progress,
+                {"cells_in_series": job.cells_in_series, "capacity_ah": float(job.capacity_ah)},
             )
             result = ReplayResult(job.name, estimates, score(series, estimates), start, {}, rt)
         else:

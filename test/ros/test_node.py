@@ -676,6 +676,24 @@ def test_bad_configuration_is_refused(ctx, tmp_path):
             SocEstimatorNode(context=ctx, parameter_overrides=overrides)
 
 
+def test_cells_in_series_and_capacity_scale_the_battery_file(make_harness, battery):
+    """cells_in_series / capacity_ah scale the file to the owner's pack (scaling.py): twice the
+    cells and the rating, fed twice the voltage and current, publish the file's SoC."""
+    from soc_estimator_ros.scaling import scale_battery
+
+    big = make_harness(estimator="hybrid", cells_in_series=2 * battery.cells_in_series,
+                       capacity_ah=2 * battery.nominal_capacity_ah)  # fmt: skip
+    assert big.node.battery == scale_battery(
+        battery, 2 * battery.cells_in_series, 2 * battery.nominal_capacity_ah
+    )
+    file = make_harness(estimator="hybrid")
+    big.send([state_msg(T0 + k * S // 10, 2 * 12.3, 2 * 2.0) for k in range(20)])
+    file.send([state_msg(T0 + k * S // 10, 12.3, 2.0) for k in range(20)])
+    # Exact: n = q = 2 scale by powers of two (float32 messages carry 2x exactly).
+    assert big.soc[-1].percentage == file.soc[-1].percentage
+    assert big.soc[-1].capacity == pytest.approx(2 * battery.capacity_ah, rel=1e-6)
+
+
 def test_parameter_file_loads_in_a_namespace(tmp_path):
     text = (REPO_ROOT / "config" / "soc_estimator_node.yaml").read_text()
     path = tmp_path / "params.yaml"

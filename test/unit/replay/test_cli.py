@@ -275,3 +275,31 @@ def test_state_carries_the_learned_health_from_replay_to_replay(tmp_path, capsys
     assert "initial_soc=ocv" in out  # the SoC starts as without a state file
     code, _, err = run([str(src), "--params", str(_sla()), "--state", str(state), "--all"], capsys)
     assert code == 2 and "--state needs one estimator" in err
+
+
+def test_cells_in_series_and_capacity_scale_the_file(tmp_path, capsys):
+    """--cells-in-series / --capacity-ah: a pack of twice the file's cells and rating, its
+    recording twice the voltage and current, gives the file's estimates (n = q = 2: exact)."""
+    s = excerpt()
+    battery = load_battery_params(_sla())
+    doubled = tmp_path / "doubled.csv"
+    with doubled.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time_s", "current_a", "voltage_v", "temperature_c", "soc_ref"])
+        for row in zip(
+            s.stamp_ns * 1e-9, 2 * s.current_a, 2 * s.voltage_v, s.temperature_c, s.soc_ref,
+            strict=True,
+        ):  # fmt: skip
+            w.writerow([repr(float(v)) for v in row])
+    plain, scaled = tmp_path / "plain.csv", tmp_path / "scaled.csv"
+    base = ["--params", str(_sla()), "--initial-soc", "ref"]
+    assert run([str(write_excerpt(tmp_path / "run.csv")), *base, "--output", str(plain)],
+               capsys)[0] == 0  # fmt: skip
+    pack = ["--cells-in-series", str(2 * battery.cells_in_series),
+            "--capacity-ah", str(2 * battery.nominal_capacity_ah)]  # fmt: skip
+    assert run([str(doubled), *base, *pack, "--output", str(scaled)], capsys)[0] == 0
+    with plain.open() as a, scaled.open() as b:
+        rows_a, rows_b = list(csv.DictReader(a)), list(csv.DictReader(b))
+    assert [r["soc"] for r in rows_a] == [r["soc"] for r in rows_b]
+    code, _, err = run([str(doubled), *base, "--cells-in-series", "-2"], capsys)
+    assert code == 2 and "--cells-in-series" in err
