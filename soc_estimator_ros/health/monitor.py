@@ -335,7 +335,7 @@ class HealthMonitor:
         value once it differs from the file's by at least ``APPLY_SIGMA`` of its std, else the
         file's. A change the evidence cannot tell from the readings' own errors is not applied
         (on the fresh LFP pack the rest readings' bias moved the capacity 2 sigma, and the
-        hybrid fed with it went from 0.2 % to 2.3 % MAE: docs/health.md)."""
+        hybrid fed with it went from 0.2 % to 2.3 % MAE: docs/architecture.md#health)."""
         q, f = self.capacity.capacity_ah, self.resistance.factor
         q_file = self.battery.capacity_ah
         if abs(q - q_file) < APPLY_SIGMA * self.capacity_std_ah:
