@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from soc_estimator_ros.health import CapacityEstimator, CapacityPair, ResistanceFactor, fit_capacity
-from soc_estimator_ros.health.resistance import step_observation
+from soc_estimator_ros.health.resistance import GATE_RESET, step_observation
 from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.resources import bundled_file
 
@@ -48,6 +48,21 @@ def test_resistance_factor_learns_a_grown_r0_and_rejects_outliers() -> None:
     assert abs(rf.factor - f_true) < 0.02
     assert not rf.update(rf.factor + 50.0 * math.sqrt(rf.var + 0.01), 0.01)
     assert rf.rejected == 1
+
+
+def test_a_factor_beyond_the_priors_reach_is_learned_not_locked_out() -> None:
+    """The aged-75 % LFP pack's steps all say f ~ 10.6 (9.2-11.9) against the prior 1 +- 0.3:
+    GATE_RESET rejections in a row on one side widen the prior, then the steps are taken."""
+    rng = np.random.default_rng(5)
+    rf = ResistanceFactor(1.0, 0.3**2, 0.0)
+    taken = [rf.update(10.6 + rng.normal(0.0, 0.45), 0.45**2) for _ in range(100)]
+    assert taken[: GATE_RESET - 1] == [False] * (GATE_RESET - 1) and taken[GATE_RESET - 1]
+    assert rf.rejected == GATE_RESET - 1
+    # 91 observations of std 0.45: the mean's std 0.05; 4 sigma.
+    assert abs(rf.factor - 10.6) < 0.2
+    # Outliers on alternating sides never make a run: each is rejected.
+    for k in range(2 * GATE_RESET):
+        assert not rf.update(rf.factor + (-1) ** k * 50.0, 0.01)
 
 
 def test_factor_one_is_the_files_model_bit_for_bit() -> None:
