@@ -318,12 +318,12 @@ class SocEstimatorNode(Node):
         clock_ns = self.get_clock().now().nanoseconds
         now_ns = clock_ns if self._stale_vs_clock else None
         with self._lock:
+            # Another pack's first sample is estimated with that pack's health.
+            pack = self.tracker.pack_serial(self._param("serial_number") or serial_number)
+            if pack is not None:
+                self._log((pack,))
             result = self.tracker.process(sample, now_ns=now_ns, clock_ns=clock_ns)
             self._log(result.events)
-            if result.accepted:
-                pack = self.tracker.pack_serial(self._param("serial_number") or serial_number)
-                if pack is not None:
-                    self._log((pack,))
             if result.accepted:
                 self._last_header = header
                 self._last_location, self._last_serial = location, serial_number
