@@ -31,7 +31,7 @@ from ..errors import SocEstimatorError
 from ..estimators import ESTIMATORS
 from ..evaluation import Accuracy, accuracy
 from ..messages import chemistry_of_technology
-from ..params import BatteryParams, ParamFileError, load_battery_params
+from ..params import BatteryParams, load_battery_params
 from ..recordings import read_recording
 from ..resources import BUNDLED_FILES, bundled_file
 from ..runtime import RuntimeConfig
@@ -287,13 +287,10 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
 
     series = read_recording(job.path, job.topic, job.sign)
     battery_file = job.params or battery_file_for(series)
+    battery = load_battery_params(battery_file)
     try:
-        battery = scale_to_pack(
-            load_battery_params(battery_file), job.cells_in_series, job.capacity_ah
-        )
-    except ParamFileError:
-        raise
-    except ValueError as exc:
+        battery = scale_to_pack(battery, job.cells_in_series, job.capacity_ah)
+    except ValueError as exc:  # the node's rule (node/ros_node.py), one line
         raise ReplayError(f"--cells-in-series / --capacity-ah: {exc}") from exc
     results = []
     for estimator in job.estimators:
