@@ -143,6 +143,18 @@ class HealthMonitor:
         return self.capacity.capacity_ah / self.battery.capacity_ah
 
     @property
+    def applied_capacity_ah(self) -> float:
+        """The capacity the estimator computes with (:meth:`learned`'s): what
+        ``BatteryState.capacity`` publishes; :attr:`capacity_ah` is the raw estimate."""
+        return self.learned()[0]
+
+    @property
+    def applied_soh(self) -> float:
+        """The SOH of :attr:`applied_capacity_ah`: what ``power_supply_health`` and the SOH
+        warnings read, so a change within the evidence's noise neither trips nor publishes."""
+        return self.applied_capacity_ah / self.battery.capacity_ah
+
+    @property
     def r0_factor(self) -> float:
         return self.resistance.factor
 

@@ -16,7 +16,9 @@ key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
   identified at (plus its margin; the model's resistances then follow Arrhenius, and the hybrid
   weighs the voltage less);
 * WARN / ERROR: with health learned (``learn_health``), the state of health below the battery
-  file's ``health.soh_warn`` / ``health.soh_dead`` (seed 001's end of life, 0.6);
+  file's ``health.soh_warn`` / ``health.soh_dead`` (seed 001's end of life, 0.6), read on the
+  applied SOH (``HealthMonitor.applied_soh``: the learned capacity once it differs from the
+  file's by its ``APPLY_SIGMA`` std, the value the estimator and ``BatteryState`` use);
 * WARN: the hybrid's guard (``estimators/guard.py``) weighs its voltage model below
   :data:`MODEL_WEIGHT_WARN`: the filter and the charge count disagree beyond the count's error
   budget, and the published SoC follows the count.
@@ -154,7 +156,7 @@ class Diagnostics:
             )
         health = tr.health
         if health is not None:
-            soh, hs = health.soh, tr.battery.health
+            soh, hs = health.applied_soh, tr.battery.health
             if soh < hs.soh_warn:
                 severity = Level.ERROR if soh < hs.soh_dead else Level.WARN
                 limit = hs.soh_dead if soh < hs.soh_dead else hs.soh_warn
@@ -220,6 +222,8 @@ class Diagnostics:
         if health is not None:
             values += [(f"health_{k}", v) for k, v in health.fields().items()]
             values += [
+                ("health_applied_capacity_ah", health.applied_capacity_ah),
+                ("health_applied_soh", health.applied_soh),
                 ("health_pairs_used", health.pairs_used),
                 ("health_pairs_rejected", health.pairs_rejected),
                 ("health_serial_number", health.serial_number or "none"),

@@ -390,11 +390,13 @@ class SocEstimatorNode(Node):
             self._pending_runtime = None
 
     def _learned_health(self) -> tuple[float | None, float | None]:
-        """``estimate_state``'s learned capacity and SOH (None, None with learn_health off)."""
+        """``estimate_state``'s capacity and SOH: those the estimator computes with (the
+        learned ones once beyond their noise, ``HealthMonitor.learned``); None, None with
+        learn_health off."""
         health = self.tracker.health
         if health is None:
             return None, None
-        return health.capacity_ah, health.soh
+        return health.applied_capacity_ah, health.applied_soh
 
     def stale_for(self, now_steady_s: float) -> float | None:
         """Seconds without an accepted sample beyond ``stale_timeout_s`` (None: not stale,

@@ -374,6 +374,31 @@ def test_learned_health_is_published_and_survives_a_restart(make_harness, tmp_pa
     assert not off.trigger("reset_health").success
 
 
+def test_published_capacity_is_the_one_the_estimator_uses(make_harness, tmp_path, battery):
+    """A learned capacity within 2 std of the file's (HealthMonitor.APPLY_SIGMA) is not applied
+    to the estimator, so BatteryState.capacity, charge and the SOH warnings keep the file's;
+    the raw estimate is still in diagnostics."""
+    state_file = tmp_path / "noisy.yaml"
+    # 0.7 of the file's capacity, std 0.2 of it: 1.5 std away, not applied.
+    q_file = battery.capacity_ah
+    noisy = HealthState(0.7 * q_file, (0.2 * q_file) ** 2, 1.0, 0.01, "SIM-1", T0 * 1e-9)
+    save_state(state_file, SavedState(0.9, 1e-4, noisy.stamp_s, "hybrid", battery.name, noisy))
+    h = make_harness(learn_health=True, initial_soc="resume", state_file=str(state_file))
+    h.send([state_msg(T0 + S + k * S // 10, 12.3, 2.0) for k in range(5)])
+    msg = h.soc[-1]
+    assert msg.capacity == pytest.approx(q_file, rel=1e-6)  # float32 field
+    assert msg.charge == pytest.approx(msg.percentage * q_file, rel=1e-5)
+    assert msg.power_supply_health == BatteryState.POWER_SUPPLY_HEALTH_GOOD
+    assert h.node.tracker.estimator.capacity_ah == q_file
+    status = h.node.diagnostic_status()
+    assert "state of health" not in status.message  # 0.7 < soh_warn 0.8, but not applied
+    values = {kv.key: kv.value for kv in status.values}  # text, 6 significant digits
+    assert float(values["health_capacity_ah"]) == pytest.approx(0.7 * q_file, rel=1e-3)
+    assert float(values["health_applied_capacity_ah"]) == pytest.approx(q_file, rel=1e-5)
+    assert float(values["health_applied_soh"]) == pytest.approx(1.0, abs=1e-5)
+    h.close()
+
+
 def test_periodic_save(make_harness, tmp_path):
     state_file = tmp_path / "periodic.yaml"
     h = make_harness(initial_soc="0.7", state_file=str(state_file), save_period_s=0.2)
