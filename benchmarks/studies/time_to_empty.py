@@ -15,7 +15,17 @@ run, in minutes:
   (no load spread; the std is the SoC's alone): what the model and the SoC estimate leave
   once the load forecast is right.
 
+With ``--stationary`` (the target's missions: a load whose statistics do not change), the
+runs are simulated here instead, by the simulator that made the bags (PyBaMM through
+``tools/make_bags.PackSim``; run it with the sim venv of bags/README.md): the bundled pack at
+an ambient temperature, rested at full, then a constant-power load of :data:`STATIONARY`
+(10-s blocks, each block's power the mean times ``1 + 0.25 N(0, 1)``, the current the block's
+power over the last voltage, as a DC-DC converter draws) down past ``soc_min``, sampled at
+2 Hz through the bundled bags' sensors. Validation only: nothing was tuned on them (seeds
+:data:`STATIONARY_SEED` + the case's index, fixed before the first run).
+
     .venv/bin/python benchmarks/studies/time_to_empty.py [--initial-soc ref|ocv] [--jobs 2]
+    /tmp/sim/bin/python benchmarks/studies/time_to_empty.py --stationary
 
 About 1-2 minutes per run on one core.
 """
@@ -28,6 +38,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/)
 
@@ -40,7 +51,9 @@ from soc_estimator_ros.evaluation import (  # noqa: E402
 from soc_estimator_ros.params import load_battery_params  # noqa: E402
 from soc_estimator_ros.recordings import read_recording  # noqa: E402
 from soc_estimator_ros.replay.run import battery_file_for, tracker_config  # noqa: E402
+from soc_estimator_ros.resources import bundled_file  # noqa: E402
 from soc_estimator_ros.runtime.prediction import LoadForecast, time_to_empty  # noqa: E402
+from soc_estimator_ros.series import BatterySeries  # noqa: E402
 from soc_estimator_ros.tracking import GateConfig, Sample, Tracker  # noqa: E402
 
 BAGS = ROOT / "bags"
@@ -48,13 +61,60 @@ RUNS = [
     f"{c}_field_run_{r}" for c in ("sla", "lfp") for r in ("1_full_rest", "2_partial", "3_cold")
 ]
 MARKS = (0.8, 0.5, 0.3)
+#: Stationary-load runs (``--stationary``): chemistry, ambient degC, mean power in W (SLA 0.5 C,
+#: LFP 0.7 C of the nominal capacity at 12.5 V: a robot cruising).
+STATIONARY = (("lfp", 25.0, 52.0), ("lfp", 5.0, 52.0), ("sla", 25.0, 31.0), ("sla", 5.0, 31.0))
+STATIONARY_SEED = 4200
+STATIONARY_RATE_HZ = 2.0
+STATIONARY_BLOCK_S = 10.0
+STATIONARY_SPREAD = 0.25
 
 
-def run_one(args: tuple[str, str]) -> dict:
-    """One field run: the node's predictions and the oracle-load ones, per sample."""
-    name, initial_soc = args
-    series = read_recording(BAGS / name)
-    battery = load_battery_params(battery_file_for(series))
+def stationary_series(index: int) -> tuple[str, BatterySeries]:
+    """Case ``index`` of :data:`STATIONARY`, simulated (module docstring)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    import make_bags as mb
+
+    chem, ambient_c, power_w = STATIONARY[index]
+    rng = np.random.default_rng(STATIONARY_SEED + index)
+    pack = mb.PACKS[chem]
+    meta = yaml.safe_load((BAGS / f"{chem}_field_run_1_full_rest" / "bag.yaml").read_text())
+    capacity_ah = float(meta["reference_capacity_ah"])  # the same pack's C/20 capacity
+    sensors = mb.SensorModel.draw(rng)
+    sim = mb.PackSim(pack, ambient_c)
+    rec = mb.Recording()
+    mb.run_segments(sim, [(300.0, mb.REST_A)], rec, STATIONARY_RATE_HZ)
+    soc_end = load_battery_params(bundled_file(chem)).limits.soc_min - 0.03
+    v_min = load_battery_params(bundled_file(chem)).limits.voltage_min_v
+    while 1.0 - sim.discharged_ah / capacity_ah > soc_end and sim.last_v > v_min:
+        p_w = power_w * max(0.1, 1.0 + STATIONARY_SPREAD * rng.normal())
+        mb.run_segments(sim, [(STATIONARY_BLOCK_S, p_w / sim.last_v)], rec, STATIONARY_RATE_HZ)
+    t, i, v, q = rec.arrays()
+    i_m, v_m, temp_m = sensors.measure(rng, i, v, rec.temperatures())
+    series = BatterySeries(
+        t_s=t - t[0],
+        stamp_ns=(1_700_000_000 * 10**9 + np.round(t * 1e9)).astype(np.int64),
+        current_a=i_m,
+        voltage_v=v_m,
+        temperature_c=temp_m,
+        soc_ref=1.0 - q / capacity_ah,
+        reference_capacity_ah=capacity_ah,
+    )
+    return f"{chem}_stationary_{ambient_c:g}C_{power_w:g}W", series
+
+
+def run_one(args: tuple[str | int, str]) -> dict:
+    """One run (a field run's name, or a :data:`STATIONARY` index): the node's predictions and
+    the oracle-load ones, per sample."""
+    which, initial_soc = args
+    if isinstance(which, int):
+        name, series = stationary_series(which)
+        battery = load_battery_params(bundled_file(name.split("_")[0]))
+    else:
+        name, series = which, read_recording(BAGS / which)
+        battery = load_battery_params(battery_file_for(series))
     config = tracker_config(series, "hybrid", initial_soc, runtime=True)
     tracker = Tracker(battery, GateConfig.from_limits(battery.limits), config)
     n = len(series)
@@ -132,8 +192,14 @@ def main() -> int:
     ap.add_argument("--initial-soc", default="ref", help="ref (the default) or ocv")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--runs", default=",".join(RUNS))
+    ap.add_argument(
+        "--stationary", action="store_true", help="simulated stationary-load runs instead"
+    )
     args = ap.parse_args()
-    runs = [(r, args.initial_soc) for r in args.runs.split(",")]
+    which: list[str | int] = (
+        list(range(len(STATIONARY))) if args.stationary else args.runs.split(",")
+    )
+    runs = [(r, args.initial_soc) for r in which]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(run_one, runs))
     print(f"hybrid, start {args.initial_soc}; node defaults (300-s window, 1 prediction/s)")
