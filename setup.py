@@ -28,6 +28,8 @@ setup(
     extras_require={
         # Developer tool only: tools/make_bags.py simulates the bundled bags with PyBaMM.
         "sim": ["pybamm==26.10.1.1"],
+        # Desktop only: soc_replay on a Dask cluster and fsspec URLs (replay/fleet.py).
+        "fleet": ["dask[distributed]", "fsspec"],
         # setuptools >= 72 dropped `tests_require` (it only warns "Unknown distribution
         # option"); the test tools are pinned in requirements-test.txt.
         "test": ["pytest"],

@@ -3,10 +3,12 @@
     soc_replay INPUT [INPUT ...] [--params FILE] [--estimator NAME | --all]
                [--initial-soc ocv|ref|X] [--output est.csv] [--plot fig.png | --plot-dir DIR]
                [--output-bag DIR] [--progress] [--live [--rate X]] [--jobs N]
+               [--scheduler ADDRESS|local]
 
 INPUT is a rosbag2 bag (MCAP or sqlite3; ``--topic``, default ``/battery/state``), a CSV
 (``time_s,current_a,voltage_v[,temperature_c][,soc_ref]`` with ``--current-sign``), or a
-directory of bags (processed in parallel over the cores). Without ``--params`` the bundled
+directory of bags (processed in parallel over the cores, or on a Dask cluster with
+``--scheduler``), or an fsspec URL of any of them (``fleet.py``). Without ``--params`` the bundled
 battery file is chosen from the recording's ``power_supply_technology``. Every sample goes
 through the node's own tracker (input gate, initialization; ``run.py``); the start used and
 the rejected samples are printed. With a reference SoC in the input, MAE, RMSE, max error
@@ -27,14 +29,20 @@ from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS
 from ..evaluation import Accuracy
 from ..recordings import add_recording_arguments
 from ..units import CurrentSign
+from .fleet import LOCAL, expand_url, is_url, local_copy, run_on_dask
 from .outputs import plot_results, write_csv, write_output_bag
 from .run import ReplayError, ReplayJob, ReplayResult, run_job
 
 
-def expand_inputs(paths: list[Path]) -> list[Path]:
-    """A directory holding bags (sub-directories with metadata.yaml) expands to them."""
-    out: list[Path] = []
-    for p in paths:
+def expand_inputs(inputs: list[str]) -> list[Path | str]:
+    """A directory holding bags (sub-directories with metadata.yaml) expands to them; a URL
+    (``fleet.py``) stays a string, its directory of bags expanded the same way."""
+    out: list[Path | str] = []
+    for text in inputs:
+        if is_url(text):
+            out += expand_url(text)
+            continue
+        p = Path(text)
         if p.is_dir() and not (p / "metadata.yaml").exists():
             bags = sorted(q for q in p.iterdir() if (q / "metadata.yaml").exists())
             if not bags:
@@ -49,7 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="soc_replay", description="Replay recorded battery data through the estimators."
     )
-    ap.add_argument("inputs", nargs="+", type=Path, help="bag, CSV, or directory of bags")
+    ap.add_argument(
+        "inputs",
+        nargs="+",
+        help="bag, CSV, or directory of bags; or an fsspec URL of one (s3://..., file://...)",
+    )
     ap.add_argument("--params", type=Path, help="battery parameter file (default: by technology)")
     group = ap.add_mutually_exclusive_group()
     group.add_argument(
@@ -109,7 +121,18 @@ def build_parser() -> argparse.ArgumentParser:
         "back at the end; the inputs are replayed in order as one battery's life "
         "(implies --learn-health)",
     )
-    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="parallel jobs: the process pool's, or --scheduler local's workers",
+    )
+    ap.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run the jobs on a Dask cluster: its scheduler's address (tcp://HOST:8786), or "
+        "'local' for a local cluster of --jobs workers (docs/replay.md, 'A fleet')",
+    )
     return ap
 
 
@@ -121,8 +144,9 @@ def _fmt(acc: Accuracy | None) -> str:
 
 
 def _job(job: ReplayJob) -> tuple[str, list[ReplayResult], str | None]:
-    """A job for the process pool: replay, then write what it asks for."""
-    series, battery, results = run_job(job)
+    """A job for the process pool or a Dask worker: replay, then write what it asks for."""
+    with local_copy(job) as local:
+        series, battery, results = run_job(local)
     out_bag = job.extras.get("output_bag")
     if out_bag:
         write_output_bag(Path(out_bag), series, battery, results)
@@ -136,7 +160,17 @@ def _job(job: ReplayJob) -> tuple[str, list[ReplayResult], str | None]:
     return job.name, results, plot
 
 
-def _check(args: argparse.Namespace, inputs: list[Path], estimators: list[str]) -> None:
+def _check(args: argparse.Namespace, inputs: list[Path | str], estimators: list[str]) -> None:
+    if args.scheduler is not None:
+        if args.live or args.state is not None:
+            raise ReplayError("--scheduler runs offline jobs in any order (not --live, --state)")
+        if args.scheduler != LOCAL and (args.plot or args.plot_dir or args.output_bag):
+            raise ReplayError(
+                "--plot, --plot-dir and --output-bag write where a job runs: with a remote "
+                "--scheduler, on the workers; use --scheduler local or the process pool"
+            )
+    if args.live and any(isinstance(i, str) for i in inputs):
+        raise ReplayError("--live reads local recordings (not URLs)")
     if args.output and (len(inputs) > 1 or len(estimators) > 1):
         raise ReplayError("--output needs one input and one estimator")
     if args.plot and len(inputs) > 1:
@@ -184,8 +218,13 @@ def main(argv: list[str] | None = None) -> int:
             cells_in_series=args.cells_in_series,
             capacity_ah=args.capacity_ah,
         )
-        jobs = [replace(base, path=p) for p in inputs]
-        if len(jobs) > 1 and args.jobs > 1 and not args.live and args.state is None:
+        jobs = [
+            replace(base, path=Path(), url=p) if isinstance(p, str) else replace(base, path=p)
+            for p in inputs
+        ]
+        if args.scheduler is not None:
+            done = run_on_dask(_job, jobs, args.scheduler, args.jobs)
+        elif len(jobs) > 1 and args.jobs > 1 and not args.live and args.state is None:
             with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
                 done = list(pool.map(_job, jobs))
         else:

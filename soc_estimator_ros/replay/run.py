@@ -90,11 +90,13 @@ class ReplayJob:
     state: Path | None = None
     cells_in_series: int = 0
     capacity_ah: float = 0.0
+    #: An fsspec URL the input is fetched from where the job runs (``fleet.py``); "" = path.
+    url: str = ""
 
     @property
     def name(self) -> str:
         """The input's name in tables and plots."""
-        return self.path.name
+        return self.url.rstrip("/").rsplit("/", 1)[-1] if self.url else self.path.name
 
 
 def battery_file_for(series: BatterySeries) -> Path:

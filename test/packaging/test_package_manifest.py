@@ -39,6 +39,10 @@ ROSDEP_KEY = {
     "launch_ros": "launch_ros",
     "ament_index_python": "ament_index_python",
 }
+# Desktop-only modules: imported lazily (inside functions) by this one file, for fleet-size
+# replays the robot never runs; setup.py's "fleet" extra and requirements.txt install them, and
+# package.xml does not make a robot's `rosdep install` pull a cluster engine.
+DESKTOP_ONLY = {"dask": "replay/fleet.py", "fsspec": "replay/fleet.py"}
 # rosdep keys this package uses that the rosdistro database does not define (as far as we could
 # check); rosdep/soc_estimator_ros.yaml defines them for `rosdep install`.
 LOCAL_ROSDEP_KEYS = {"python3-rosbags-pip"}
@@ -107,6 +111,28 @@ def _imports(path: Path) -> set[str]:
     return names
 
 
+def _top_level_imports(path: Path) -> set[str]:
+    """Modules imported at a module's top level (not inside a function)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    names: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, ast.Import):
+            names |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_desktop_only_modules_are_the_fleet_extra() -> None:
+    setup_py = (REPO_ROOT / "setup.py").read_text(encoding="utf-8")
+    requirements = (REPO_ROOT / "requirements.txt").read_text(encoding="utf-8")
+    fleet = re.search(r'"fleet": \[(.*)\],', setup_py)
+    assert fleet is not None, 'setup.py has no "fleet" extra'
+    for module in DESKTOP_ONLY:
+        assert f'"{module}' in fleet.group(1), module
+        assert re.search(rf"^{module}==", requirements, re.M), module
+
+
 def _package_sources() -> list[Path]:
     return [*(REPO_ROOT / PACKAGE).rglob("*.py"), *(REPO_ROOT / "launch").glob("*.py")]
 
@@ -118,6 +144,14 @@ def test_every_import_is_a_declared_dependency() -> None:
     for path in _package_sources():
         rel = path.relative_to(REPO_ROOT)
         for module in sorted(_imports(path) - stdlib - {PACKAGE}):
+            if module in DESKTOP_ONLY:
+                home = REPO_ROOT / PACKAGE / DESKTOP_ONLY[module]
+                if path != home or module in _top_level_imports(path):
+                    problems.append(
+                        f"{rel} imports {module!r}: desktop only, lazily from "
+                        f"{DESKTOP_ONLY[module]} (DESKTOP_ONLY)"
+                    )
+                continue
             key = ROSDEP_KEY.get(module)
             if key is None:
                 problems.append(
