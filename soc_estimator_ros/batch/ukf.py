@@ -25,10 +25,24 @@ the covariance is symmetrized and its eigenvalues floored after the predict and 
 the SoC is clipped to [0, 1] with the clipped amount added to its variance (up to 1). The
 surface lag's modes are carried beside the state, stepped from the SoC before the predict.
 
-What makes it fast beyond the vectorization: the lower Cholesky factor has zeros above its
-diagonal, so the SoC row of the sigma points takes only three values (``x_0``,
-``x_0 +- L_00``); the parameter tables and the OCV, functions of the SoC (and the lane's
-temperature), are read at those three and spread to the ``2N + 1`` points.
+The sums over the 2N + 1 points are taken in closed form where the points share a value,
+which is what makes the engine fast (the arrays are ``(N, K)``, not ``(N, 2N + 1, K)``). The
+lower factor ``L`` has zeros above its diagonal, so only column 0 moves the SoC: the pair
+``x +- L_0`` and the centre read the tables and the OCV at their own SoC (three values per
+lane), and every other pair ``x +- L_i`` (i >= 1) sits at the centre's SoC, where the model is
+linear in the branch voltages. With ``w = Wim = Wic`` and ``c = 2 w (N - 1)``:
+
+* predict: ``X'_0 = f(x)``, ``X'_+- = f(x +- L_0)``, and for i >= 1
+  ``f(x +- L_i) = X'_0 +- M_i``, ``M_i = [0, a(x_0) L_i[1:]]`` (the branches' decay ``a``);
+  so ``x- = (W0m + c) X'_0 + w (X'_+ + X'_-)`` and, with ``D = X' - x-``,
+  ``P- = (W0c + c) D_0 D_0^T + w (D_+ D_+^T + D_- D_-^T) + 2 w sum_i M_i M_i^T + Q dt``;
+* update: ``Z_0 = h(x-)``, ``Z_+- = h(x- +- L_0)``, for i >= 1 ``h(x- +- L_i) = Z_0 -+ l_i``
+  with ``l_i`` the sum of ``L_i``'s branch rows (the voltage subtracts the branches); so
+  ``z = (W0m + c) Z_0 + w (Z_+ + Z_-)``, ``S = (W0c + c) dz_0^2 + w (dz_+^2 + dz_-^2) +
+  2 w sum_i l_i^2 + R`` and ``P_xz = w L_0 (dz_+ - dz_-) - 2 w sum_i l_i L_i``.
+
+These are the equations above with equal terms added once; the per-sample path adds them
+one by one, so the two differ by rounding only.
 
 Agreement with the per-sample path: the same equations in a different rounding order (numpy
 reductions for BLAS dot products, ``np.exp`` for ``math.exp``, the tables' bilinear
@@ -188,9 +202,6 @@ class BatchT2rcUkf:
         self.t_last_s = np.full(k, math.nan)  # NaN: not started
         self.current_last_a = np.zeros(k)
         self.clip_count = np.zeros(k, dtype=np.int64)
-        # Sigma point s of 2N + 1 reads SoC value _SOC_OF[s] of (x_0, x_0 + L_00, x_0 - L_00).
-        self._soc_of = np.zeros(2 * n + 1, dtype=np.intp)
-        self._soc_of[1], self._soc_of[n + 1] = 1, 2
 
     # -- configuration -----------------------------------------------------------------------
     @staticmethod
@@ -270,13 +281,13 @@ class BatchT2rcUkf:
     def _advance(self, lanes, t, cur, volt, temp, dt, started):
         """Predict (where started) and update the lanes ``lanes``; write their state back."""
         x, p, z = self.x[:, lanes], self.p[:, :, lanes], self.z_modes[:, lanes]
-        wm, wc, scale = self.wm[:, lanes], self.wc[:, lanes], self.scale[lanes]
+        scale = self.scale[lanes]
         i_k, v_k, temp_k, dt_k = cur[lanes], volt[lanes], temp[lanes], dt[lanes]
         started_k = started[lanes]
         i_last = self.current_last_a[lanes]
-        n = self.n
         status = np.full(i_k.shape, LaneStatus.INITIALIZED, dtype=np.int8)
         gap = np.zeros(i_k.shape, dtype=bool)
+        w0m, w0c, w = self.wm[0, lanes], self.wc[0, lanes], self.wc[1, lanes]
         if started_k.any():
             gap = started_k & (dt_k > self.time_policy.max_step_s)
             status[started_k] = LaneStatus.OK
@@ -284,39 +295,27 @@ class BatchT2rcUkf:
             # the current held over the step (zero-order hold), the ends' mean over a gap
             i_held = np.where(gap, 0.5 * (i_last + i_k), i_last)
             dt_safe = np.where(started_k, dt_k, 1.0)  # a starting lane does not predict
-            q_k = self.q_diag[:, lanes]
-            x_pred, p_pred, z_new = self._predict(
-                x, p, z, wm, wc, scale, q_k, i_held, dt_safe, temp_k, lanes
+            low = self._factor(p, scale, lanes)
+            x_pred, p_pred = self._predict(
+                x, low, w0m, w0c, w, self.q_diag[:, lanes], i_held, dt_safe, temp_k
             )
+            lag = self.model.params.surface_lag
+            z_new = z if lag is None else lag.step_lanes(z, i_held, dt_safe, x[0])
             if not started_k.all():
                 x_pred = np.where(started_k, x_pred, x)
                 p_pred = np.where(started_k, p_pred, p)
                 z_new = np.where(started_k, z_new, z)
             x, p, z = x_pred, p_pred, z_new
         # The update's sigma points: from (x-, P-) before a gap's inflation (filterpy 2 redraws
-        # them inside predict; a starting lane's from its initial x, P).
-        sig, soc3 = self._sigma_points(x, p, scale, lanes)
+        # them inside predict; a starting lane's from its initial x, P). P- is symmetric by
+        # construction and positive definite where this factor exists (the per-sample path
+        # raises otherwise), so its conditioning after the predict changes nothing.
+        low = self._factor(p, scale, lanes)
         if gap.any():
             q = self.time_policy.gap_current_std_a * dt_k / (SECONDS_PER_HOUR * self.capacity_ah)
             p[0, 0] = np.where(gap, p[0, 0] + q * q, p[0, 0])
-        p = condition_lanes(p) if started_k.any() else p
         z_soc = z.sum(axis=0) if z.shape[0] else np.zeros(i_k.shape)
-        # h(X): the terminal voltage at each sigma point
-        g = self.model.open_voltage_lanes(soc3, i_k, temp_k, z_soc)[self._soc_of]
-        v_rc = sig[1]
-        for i in range(2, n):
-            v_rc = v_rc + sig[i]
-        h = g - v_rc
-        zp = (wm * h).sum(axis=0)
-        dz = h - zp
-        wdz = wc * dz
-        s = (wdz * dz).sum(axis=0) + self.r_v2[lanes]
-        pxz = ((sig - x[:, np.newaxis]) * wdz).sum(axis=1)  # (n, K)
-        gain = pxz * (1.0 / s)
-        y = v_k - zp
-        x = x + gain * y
-        ks = gain * s
-        p = p - ks[:, np.newaxis] * gain[np.newaxis, :]
+        x, p, y, s = self._update(x, p, low, w0m, w0c, w, i_k, v_k, temp_k, z_soc, lanes)
         # SoC clipped to [0, 1], the clipped amount added to its variance (up to MAX_SOC_VAR)
         soc = x[0]
         clipped = np.clip(soc, 0.0, 1.0)
@@ -335,11 +334,10 @@ class BatchT2rcUkf:
         self.current_last_a[lanes] = i_k
         return status, v_k - y, y, y * y / s
 
-    def _sigma_points(self, x, p, scale, lanes) -> tuple[np.ndarray, np.ndarray]:
-        """``(X, soc3)``: the 2N + 1 sigma points ``(n, 2N + 1, K)`` and the three values their
-        SoC row takes ``(3, K)``. A lane whose ``(N + lambda) P`` has no Cholesky factor fails
-        (the per-sample path raises numpy's LinAlgError there)."""
-        n = self.n
+    def _factor(self, p, scale, lanes) -> np.ndarray:
+        """The lower Cholesky factor of ``(N + lambda) P``, whose columns the sigma points add
+        to the mean. A lane without one fails (the per-sample path raises numpy's
+        LinAlgError there)."""
         low, ok = cholesky_lanes(scale * p)
         if not ok.all():
             bad = np.flatnonzero(~ok)
@@ -348,32 +346,58 @@ class BatchT2rcUkf:
                 f"lane {lane}: the covariance is not positive definite (as the per-sample "
                 f"filter, which raises LinAlgError there); {bad.size} lane(s) failed"
             )
-        sig = np.empty((n, 2 * n + 1, x.shape[1]))
-        sig[:, 0] = x
-        sig[:, 1 : n + 1] = x[:, np.newaxis] + low
-        sig[:, n + 1 :] = x[:, np.newaxis] - low
-        return sig, sig[0, [0, 1, n + 1]]
+        return low
 
-    def _predict(self, x, p, z, wm, wc, scale, q_diag, i_held, dt, temp, lanes):
-        """``(x-, P-, z)``: the unscented transform of the Thevenin step over ``dt`` with
-        ``i_held``, ``Q = diag(q) dt``, and the surface lag's modes stepped from the SoC
-        before it (``T2rcUkf._predict``)."""
+    def _predict(self, x, low, w0m, w0c, w, q_diag, i_held, dt, temp):
+        """``(x-, P-)``: the unscented transform of the Thevenin step over ``dt`` with
+        ``i_held`` and ``Q = diag(q) dt`` (module docstring's closed-form sums)."""
         n = self.n
-        sig, soc3 = self._sigma_points(x, p, scale, lanes)
         model = self.model
+        col = low[:, 0]  # L_0: the only column that moves the SoC
+        soc3 = np.stack([x[0], x[0] + col[0], x[0] - col[0]])
         a, b = model.branch_step_lanes(soc3, i_held, dt, temp)  # (n_rc, 3, K)
-        sf = np.empty_like(sig)
-        sf[0] = model.soc_step_lanes(soc3, i_held, dt)[self._soc_of]
-        sf[1:] = a[:, self._soc_of] * sig[1:] + b[:, self._soc_of]
-        x_pred = (wm * sf).sum(axis=1)
-        d = sf - x_pred[:, np.newaxis]
-        wd = wc * d
-        p_pred = np.empty_like(p)
+        soc_new = model.soc_step_lanes(soc3, i_held, dt)
+        f0 = np.concatenate([soc_new[:1], a[:, 0] * x[1:] + b[:, 0]])
+        fp = np.concatenate([soc_new[1:2], a[:, 1] * (x[1:] + col[1:]) + b[:, 1]])
+        fm = np.concatenate([soc_new[2:], a[:, 2] * (x[1:] - col[1:]) + b[:, 2]])
+        c = 2.0 * (n - 1) * w
+        x_pred = (w0m + c) * f0 + w * (fp + fm)
+        d0, dp, dm = f0 - x_pred, fp - x_pred, fm - x_pred
+        m = a[:, 0, np.newaxis] * low[1:, 1:]  # M_i's branch rows: (n_rc, n - 1, K)
+        mm = 2.0 * w * np.einsum("ick,jck->ijk", m, m)  # 2 w sum_i M_i M_i^T, branch block
+        p_pred = np.empty((n, n, x.shape[1]))
         for i in range(n):
             for j in range(i, n):
-                p_pred[i, j] = p_pred[j, i] = (wd[i] * d[j]).sum(axis=0)
+                v = (w0c + c) * d0[i] * d0[j] + w * (dp[i] * dp[j] + dm[i] * dm[j])
+                if i:
+                    v = v + mm[i - 1, j - 1]
+                p_pred[i, j] = p_pred[j, i] = v
             p_pred[i, i] += q_diag[i] * dt
-        lag = model.params.surface_lag
-        if lag is not None:
-            z = lag.step_lanes(z, i_held, dt, x[0])
-        return x_pred, p_pred, z
+        return x_pred, p_pred
+
+    def _update(self, x, p, low, w0m, w0c, w, i_k, v_k, temp_k, z_soc, lanes):
+        """``(x, P, innovation, S)`` after the voltage update (closed-form sums)."""
+        n = self.n
+        col = low[:, 0]
+        soc3 = np.stack([x[0], x[0] + col[0], x[0] - col[0]])
+        g = self.model.open_voltage_lanes(soc3, i_k, temp_k, z_soc)  # (3, K)
+        # h(X) = g(SoC) - the branch voltages, added left to right as the model adds them
+        v0, vp, vm = x[1], x[1] + col[1], x[1] - col[1]
+        ell = low[1].copy()  # l_i: the sum of column i's branch rows
+        for r in range(2, n):
+            v0, vp, vm = v0 + x[r], vp + (x[r] + col[r]), vm + (x[r] - col[r])
+            ell = ell + low[r]
+        h0, hp, hm = g[0] - v0, g[1] - vp, g[2] - vm
+        c = 2.0 * (n - 1) * w
+        zp = (w0m + c) * h0 + w * (hp + hm)
+        dz0, dzp, dzm = h0 - zp, hp - zp, hm - zp
+        ell = ell[1:]  # columns i >= 1
+        s = (w0c + c) * dz0 * dz0 + w * (dzp * dzp + dzm * dzm) + 2.0 * w * (ell * ell).sum(0)
+        s = s + self.r_v2[lanes]
+        pxz = w * col * (dzp - dzm) - 2.0 * w * (low[:, 1:] * ell).sum(axis=1)
+        gain = pxz * (1.0 / s)
+        y = v_k - zp
+        x = x + gain * y
+        ks = gain * s
+        p = p - ks[:, np.newaxis] * gain[np.newaxis, :]
+        return x, p, y, s

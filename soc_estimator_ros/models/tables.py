@@ -196,25 +196,19 @@ class LaneTables:
 
     ``at(soc, temperature_c)`` with ``soc`` of shape ``(..., K)`` and ``temperature_c`` of
     shape ``(K,)`` returns ``(n_tables, ..., K)``: :meth:`ParamTable.at` at every element,
-    linear in the SoC on each temperature row, held at the grid's edges, then blended at the
-    lane's temperature (``v0 + w (v1 - v0)``; NaN: 25 degC), as :meth:`ParamTable.at` does.
-
-    A row, linear between its breakpoints ``s_0 < ... < s_J``, is written as hinges::
-
-        v(s) = v_0 + d_0 (s - s_0) + sum_{j >= 1} (d_j - d_{j-1}) max(s - s_j, 0)
-
-    (``d_j`` the slope of segment j, ``s`` clipped to ``[s_0, s_J]``), so every table on a
-    grid is one product of its coefficients with the hinges, which the tables sharing that SoC
-    grid and temperature axis share: no per-element gather. The product is ``np.einsum``'s
-    own loop, not BLAS: OpenBLAS threads a product this wide, and on a loaded machine its
-    threads cost 100x the arithmetic (measured: 13.6 ms against 0.09 ms single-threaded for
-    10 x 8 by 8 x 9000). A grid of more than :attr:`MAX_HINGES` segments (the OCV offset's 40)
-    is read row by row with ``np.interp`` instead. Either way the value is the interpolant of
-    :meth:`ParamTable.at_array` in another rounding order (a few ulp apart).
+    linear in the SoC on the two temperature rows around the lane's temperature, held at the
+    grid's edges, then ``v0 + w (v1 - v0)`` (NaN: 25 degC), as :meth:`ParamTable.at` does.
+    Tables sharing a SoC grid and a temperature axis share the bracket; each reads its
+    segment's value and slope, ``v = r_j + d_j (s - s_j)`` (one ``np.take`` each from a row
+    of a few values). The interpolant is :meth:`ParamTable.at_array`'s (which blends the rows
+    first, then interpolates) in another rounding order: a few ulp apart, not bit for bit.
+    Measured faster than a shared-hinge product (``np.einsum``, or BLAS, whose threads cost
+    100x the arithmetic on a loaded machine) for the files' 5 to 40 segments.
     """
 
-    #: Grids with more segments than this are read by ``np.interp`` (module docstring).
-    MAX_HINGES: ClassVar[int] = 16
+    #: Grids of up to this many segments find an element's segment by comparing it with each
+    #: breakpoint (faster than ``np.searchsorted``'s binary search on unsorted elements).
+    MAX_COMPARED: ClassVar[int] = 12
 
     def __init__(self, tables: Sequence[ParamTable]) -> None:
         self.n_tables = len(tables)
@@ -229,43 +223,39 @@ class LaneTables:
                 grid = np.array([soc[0], soc[0] + 1.0])
                 vals = np.concatenate([vals, vals], axis=2)
             slope = np.diff(vals, axis=2) / np.diff(grid)  # (m, n_t, n_seg)
-            hinge = np.diff(slope, axis=2)  # (m, n_t, n_seg - 1): the kinks at s_1..s_{J-1}
-            coef = np.concatenate([vals[:, :, :1], slope[:, :, :1], hinge], axis=2)
-            n_t = vals.shape[1]
-            # (n_t * m, n_seg + 1): temperature row major, then table
-            coef = np.ascontiguousarray(coef.transpose(1, 0, 2).reshape(n_t * len(members), -1))
-            if grid.size - 1 > self.MAX_HINGES:  # the rows themselves, for np.interp
-                coef = np.ascontiguousarray(vals.transpose(1, 0, 2).reshape(n_t * len(members), -1))
-            self._groups.append((np.array(members), grid, np.array(temps, dtype=float), coef))
-
-    def _rows_at(self, soc: np.ndarray, grid: np.ndarray, coef: np.ndarray) -> np.ndarray:
-        """Every row of a group at every element of ``soc``: ``(n_rows, soc.size)``."""
-        s = np.clip(soc, grid[0], grid[-1]).reshape(1, -1)
-        if grid.size - 1 > self.MAX_HINGES:
-            return np.array([fast_interp(s[0], grid, row, None, None) for row in coef])
-        basis = np.empty((grid.size, s.size))  # [1, s - s_0, max(s - s_j, 0) ...]
-        basis[0] = 1.0
-        np.subtract(s, grid[:-1, np.newaxis], out=basis[1:])
-        np.maximum(basis[2:], 0.0, out=basis[2:])
-        return np.einsum("ij,jk->ik", coef, basis)
+            m = len(members)
+            # per table, (temperature row, segment) flattened row-major: t * n_seg + j
+            value = np.ascontiguousarray(vals[:, :, :-1].reshape(m, -1))
+            slope = np.ascontiguousarray(slope.reshape(m, -1))
+            self._groups.append(
+                (members, grid, np.array(temps, dtype=float), value, slope, grid.size - 1)
+            )
 
     def at(self, soc: np.ndarray, temperature_c: np.ndarray) -> np.ndarray:
         soc = np.asarray(soc, dtype=float)
         temps = np.asarray(temperature_c, dtype=float)
         out = np.empty((self.n_tables, *soc.shape))
         t = np.where(np.isnan(temps), 25.0, temps)
-        for members, grid, taxis, coef in self._groups:
-            v = self._rows_at(soc, grid, coef).reshape(taxis.size, members.size, *soc.shape)
+        for members, grid, taxis, value, slope, n_seg in self._groups:
+            s = np.clip(soc, grid[0], grid[-1])
+            if n_seg <= self.MAX_COMPARED:  # the segment: the inner breakpoints at or below s
+                j = np.zeros(s.shape, dtype=np.intp)
+                for g in grid[1:-1].tolist():
+                    j += s >= g
+            else:
+                j = np.searchsorted(grid, s, side="right") - 1
+                np.minimum(j, n_seg - 1, out=j)
+            h = s - grid[j]
             if taxis.size == 1:
-                out[members] = v[0]
+                for row, k in enumerate(members):
+                    out[k] = value[row][j] + slope[row][j] * h
                 continue
             it, wt = _bracket_each(taxis, t)
-            if taxis.size == 2:  # the bracket is rows 0 and 1 on every lane
-                v0, v1 = v[0], v[1]
-            else:
-                lane = np.arange(t.size)
-                v0 = v[it, ..., lane]
-                v1 = v[it + 1, ..., lane]
-                v0, v1 = np.moveaxis(v0, 0, -1), np.moveaxis(v1, 0, -1)
-            out[members] = v0 + wt * (v1 - v0)
+            lo = j + it * n_seg
+            hi = lo + n_seg
+            for row, k in enumerate(members):
+                v, d = value[row], slope[row]
+                v0 = v[lo] + d[lo] * h
+                v1 = v[hi] + d[hi] * h
+                out[k] = v0 + wt * (v1 - v0)
         return out
