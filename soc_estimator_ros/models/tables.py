@@ -236,6 +236,7 @@ class LaneTables:
         temps = np.asarray(temperature_c, dtype=float)
         out = np.empty((self.n_tables, *soc.shape))
         t = np.where(np.isnan(temps), 25.0, temps)
+        brackets: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # per temperature axis
         for members, grid, taxis, value, slope, n_seg in self._groups:
             s = np.clip(soc, grid[0], grid[-1])
             if n_seg <= self.MAX_COMPARED:  # the segment: the inner breakpoints at or below s
@@ -248,14 +249,17 @@ class LaneTables:
             h = s - grid[j]
             if taxis.size == 1:
                 for row, k in enumerate(members):
-                    out[k] = value[row][j] + slope[row][j] * h
+                    out[k] = value[row].take(j) + slope[row].take(j) * h
                 continue
-            it, wt = _bracket_each(taxis, t)
+            key = taxis.tobytes()
+            if key not in brackets:
+                brackets[key] = _bracket_each(taxis, t)
+            it, wt = brackets[key]
             lo = j + it * n_seg
             hi = lo + n_seg
             for row, k in enumerate(members):
                 v, d = value[row], slope[row]
-                v0 = v[lo] + d[lo] * h
-                v1 = v[hi] + d[hi] * h
+                v0 = v.take(lo) + d.take(lo) * h
+                v1 = v.take(hi) + d.take(hi) * h
                 out[k] = v0 + wt * (v1 - v0)
         return out
