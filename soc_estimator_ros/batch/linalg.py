@@ -26,16 +26,16 @@ def cholesky_lanes(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ok = np.ones(a.shape[2:], dtype=bool)
     with np.errstate(invalid="ignore", divide="ignore"):
         for j in range(n):
-            d = a[j, j].copy()
+            d = a[j, j]
             for k in range(j):
-                d -= low[j, k] * low[j, k]
-            ok &= d > 0.0
-            ljj = np.sqrt(np.where(d > 0.0, d, np.nan))
+                d = d - low[j, k] * low[j, k]
+            ok &= d > 0.0  # NaN fails too
+            ljj = np.sqrt(d)  # NaN where d < 0: the failed lane's factor
             low[j, j] = ljj
             for i in range(j + 1, n):
-                s = a[i, j].copy()
+                s = a[i, j]
                 for k in range(j):
-                    s -= low[i, k] * low[j, k]
+                    s = s - low[i, k] * low[j, k]
                 low[i, j] = s / ljj
     return low, ok
 

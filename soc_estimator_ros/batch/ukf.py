@@ -173,7 +173,10 @@ class BatchT2rcUkf:
         battery: BatteryParams,
         initial_soc: np.ndarray | float,
         initial_soc_std: np.ndarray | float = 0.05,
-        tunings: Sequence[UkfTuning | Mapping[str, Any]] | UkfTuning | None = None,
+        tunings: Sequence[UkfTuning | Mapping[str, Any]]
+        | UkfTuning
+        | Mapping[str, Any]
+        | None = None,
         time_policy: TimePolicy | None = None,
     ) -> None:
         soc0 = np.atleast_1d(np.asarray(initial_soc, dtype=float))
@@ -244,6 +247,23 @@ class BatchT2rcUkf:
     @property
     def soc_var(self) -> np.ndarray:
         return self.p[0, 0].copy()
+
+    def reset_soc(self, lanes: np.ndarray, soc: np.ndarray, soc_var: np.ndarray) -> None:
+        """``Estimator.reset_soc`` on the lanes ``lanes`` (a boolean mask or indices): a pack
+        at rest at ``soc`` with variance ``soc_var`` (the branch voltages and the surface lag
+        relaxed, ``p0_v`` on the branches); the time base and the last current are kept."""
+        soc = np.asarray(soc, dtype=float)
+        var = np.asarray(soc_var, dtype=float)
+        if not np.all((soc >= 0.0) & (soc <= 1.0)) or not np.all(var > 0.0):
+            raise BatchError(f"reset_soc needs soc in [0, 1] and variance > 0, got {soc}, {var}")
+        idx = np.flatnonzero(lanes) if np.asarray(lanes).dtype == bool else np.asarray(lanes)
+        self.x[:, idx] = 0.0
+        self.x[0, idx] = soc
+        self.p[:, :, idx] = 0.0
+        self.p[0, 0, idx] = var
+        for i in range(1, self.n):
+            self.p[i, i, idx] = self.p0_v2[idx]
+        self.z_modes[:, idx] = 0.0
 
     # -- one step of every lane ----------------------------------------------------------------
     def step(
