@@ -21,9 +21,12 @@ Wan & van der Merwe (2000), "The unscented Kalman filter for nonlinear estimatio
 Around it :mod:`~soc_estimator_ros.estimators.base`'s rules, per lane: the first sample runs
 an update only; ``dt <= 0`` (or NaN) is rejected (state untouched); ``dt > max_step_s`` is a
 gap (the mean current over it, the SoC variance grown after the redraw, as ``step`` does);
-the covariance is symmetrized and its eigenvalues floored after the predict and the update;
-the SoC is clipped to [0, 1] with the clipped amount added to its variance (up to 1). The
-surface lag's modes are carried beside the state, stepped from the SoC before the predict.
+the covariance is symmetrized and its eigenvalues floored after the update (after the
+predict, ``P-`` is symmetric by construction and positive definite wherever the redraw's
+factor exists, where the per-sample path raises otherwise: its conditioning there changes
+nothing, so it is not repeated); the SoC is clipped to [0, 1] with the clipped amount added
+to its variance (up to 1). The surface lag's modes are carried beside the state, stepped from
+the SoC before the predict.
 
 The sums over the 2N + 1 points are taken in closed form where the points share a value,
 which is what makes the engine fast (the arrays are ``(N, K)``, not ``(N, 2N + 1, K)``). The
@@ -51,8 +54,9 @@ stays within 1e-9 of the filterpy path (``test/unit/batch/test_ukf.py``).
 
 Not reproduced (refused at construction or documented): estimators other than t2rc_ukf (the
 hybrid's gates, model-error state and guard), a model without RC branches, ``set_health``
-during a run (the model's ``capacity_ah`` and ``r0_factor`` are read as they are when the
-engine is built), the tracker's input gate, OCV start and FULL recalibration (``tracking/``).
+(the engine's model is the battery file's: its capacity, ``r0_factor`` 1), and the tracker
+around the estimator (``tracking/``: the input gate, the OCV start, FULL), which
+``replay/batch.py`` keeps the tracker's, applying its resets with :meth:`reset_soc`.
 """
 
 from __future__ import annotations
@@ -276,7 +280,8 @@ class BatchT2rcUkf:
     ) -> LaneStep:
         """One sample per lane (arrays of shape ``(K,)``; temperature NaN or None: unknown,
         as ``None`` in ``Estimator.step``). A lane where ``active`` is False has no sample:
-        it is left as it is (status ``FROZEN``), as is a lane whose ``dt`` is rejected."""
+        it is left as it is (status ``FROZEN``); so is a lane whose ``dt`` is rejected (status
+        ``REJECTED_DT``)."""
         k = self.k
         t = np.asarray(t_s, dtype=float)
         cur = np.asarray(current_a, dtype=float)

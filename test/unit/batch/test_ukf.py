@@ -257,6 +257,8 @@ def test_errors_name_the_problem() -> None:
     with pytest.raises(ValueError, match="'q_diag' needs 3 values"):
         UkfTuning.of({"q_diag": (1e-10, 1e-6)})
     engine = BatchT2rcUkf(battery, np.array([0.5, 0.5, 0.5]))
+    with pytest.raises(BatchError, match=r"reset_soc needs soc in \[0, 1\] and variance > 0"):
+        engine.reset_soc(np.array([True, False, False]), np.array([1.5]), np.array([0.01]))
     ones = np.ones(3)
     engine.step(0.0 * ones, ones, 13.2 * ones)
     engine.p[0, 0, 2] = -1.0  # lane 2's covariance broken
