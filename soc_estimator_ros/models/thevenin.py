@@ -63,7 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..units import SECONDS_PER_HOUR
-from .coulomb import coulomb_efficiency
+from .coulomb import coulomb_efficiency, coulomb_efficiency_lanes
 from .ocv import OcvCurve
 from .tables import LaneTables, ParamTable
 
@@ -285,9 +285,11 @@ class TheveninModel:
             f = np.exp(ea / GAS_CONSTANT_J_PER_MOL_K * (1.0 / t_k - 1.0 / edge_k))
         return np.where(d == 0.0, 1.0, f)
 
-    def soc_step_lanes(self, soc: np.ndarray, current_a: np.ndarray, dt_s: np.ndarray):
+    def soc_step_lanes(
+        self, soc: np.ndarray, current_a: np.ndarray, dt_s: np.ndarray
+    ) -> np.ndarray:
         """The SoC row of :meth:`step`: ``SoC - eta(I) I dt / (3600 Q)`` per lane."""
-        eta = np.where(current_a < 0.0, self.coulomb_efficiency_charge, 1.0)
+        eta = coulomb_efficiency_lanes(current_a, self.coulomb_efficiency_charge)
         return soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
 
     def branch_step_lanes(
