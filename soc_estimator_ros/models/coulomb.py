@@ -15,12 +15,19 @@ with Q in ampere-hours the right side needs the 3600 s/h factor.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..units import SECONDS_PER_HOUR
 
 
 def coulomb_efficiency(current_a: float, efficiency_charge: float) -> float:
     """eta of seed 000 eq. 11: 1 while discharging, ``efficiency_charge`` while charging."""
     return efficiency_charge if current_a < 0.0 else 1.0
+
+
+def coulomb_efficiency_lanes(current_a: np.ndarray, efficiency_charge: float) -> np.ndarray:
+    """:func:`coulomb_efficiency` at every element of ``current_a`` (the batch engine's)."""
+    return np.where(current_a < 0.0, efficiency_charge, 1.0)
 
 
 def coulomb_step(

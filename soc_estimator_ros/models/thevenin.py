@@ -63,9 +63,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..units import SECONDS_PER_HOUR
-from .coulomb import coulomb_efficiency
+from .coulomb import coulomb_efficiency, coulomb_efficiency_lanes
 from .ocv import OcvCurve
-from .tables import ParamTable
+from .tables import LaneTables, ParamTable
 
 
 @dataclass(frozen=True)
@@ -158,6 +158,19 @@ class SurfaceLag:
             out.append(a * z + (1.0 - a) * drive)
         return tuple(out)
 
+    def step_lanes(
+        self, z_modes: np.ndarray, current_a: np.ndarray, dt_s: np.ndarray, soc: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`step` for K independent lanes: ``z_modes`` of shape ``(n_modes, K)``, the
+        other arguments ``(K,)`` (``np.exp`` for ``math.exp``: a few ulp apart)."""
+        out = np.empty_like(z_modes)
+        modes = zip(self.gain_soc_per_a, self.tau_s, self.soc_max, strict=True)
+        for j, (g, tau, soc_max) in enumerate(modes):
+            a = np.exp(-dt_s / tau)
+            drive = np.where(soc <= soc_max, g * current_a, 0.0)
+            out[j] = a * z_modes[j] + (1.0 - a) * drive
+        return out
+
 
 #: The gas constant, J/(mol K).
 GAS_CONSTANT_J_PER_MOL_K = 8.314462618
@@ -234,6 +247,101 @@ class TheveninModel:
         self.r0_factor = 1.0
         # Without Ea the factor is always 1: the hot paths skip the call (no per-step cost).
         self._arrhenius = params.extrapolation.activation_energy_j_per_mol != 0.0
+
+    # -- K independent lanes (batch/): per-lane current, step and temperature ---------------
+    # Each method below is its scalar sibling's arithmetic on arrays whose last axis is the
+    # lane (one filter of the batch engine) and whose leading axes are points of that lane
+    # (sigma points); per-lane arguments have shape (K,). numpy's exp and arcsinh stand for
+    # math's, and the tables are read by :class:`LaneTables`: values agree with the scalar
+    # path to a few ulp, not to the bit.
+    def _lanes(self) -> tuple[LaneTables, LaneTables, tuple[int, ...]]:
+        lanes = getattr(self, "_lane_tables", None)
+        if lanes is None:
+            branches = self.params.branches
+            sat = tuple(i for i, b in enumerate(branches) if b.i_sat_a is not None)
+            sat_tables = [b.i_sat_a for b in branches if b.i_sat_a is not None]
+            step = LaneTables([*self._rc_tables, *sat_tables])
+            kin = self.params.kinetic
+            out_tables = [self.params.r0_ohm]
+            if kin is not None:
+                out_tables += [kin.a_v, kin.i0_a]
+            if self.ocv_offset is not None:
+                out_tables.append(self.ocv_offset)
+            lanes = (step, LaneTables(out_tables), sat)
+            self._lane_tables = lanes
+        return lanes
+
+    def resistance_factor_lanes(self, temperature_c: np.ndarray) -> np.ndarray | None:
+        """:meth:`resistance_factor` per lane (NaN: 1.0); None without Ea (always 1)."""
+        if not self._arrhenius:
+            return None
+        t = np.asarray(temperature_c, dtype=float)
+        lo, hi = self.trusted_c
+        d = np.where(t < lo, t - lo, np.where(t > hi, t - hi, 0.0))  # NaN compares False: 0
+        edge_k = t - d + KELVIN_AT_0_C
+        t_k = t + KELVIN_AT_0_C
+        ea = self.params.extrapolation.activation_energy_j_per_mol
+        with np.errstate(invalid="ignore"):
+            f = np.exp(ea / GAS_CONSTANT_J_PER_MOL_K * (1.0 / t_k - 1.0 / edge_k))
+        return np.where(d == 0.0, 1.0, f)
+
+    def soc_step_lanes(
+        self, soc: np.ndarray, current_a: np.ndarray, dt_s: np.ndarray
+    ) -> np.ndarray:
+        """The SoC row of :meth:`step`: ``SoC - eta(I) I dt / (3600 Q)`` per lane."""
+        eta = coulomb_efficiency_lanes(current_a, self.coulomb_efficiency_charge)
+        return soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
+
+    def branch_step_lanes(
+        self,
+        soc: np.ndarray,
+        current_a: np.ndarray,
+        dt_s: np.ndarray,
+        temperature_c: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The branch rows of :meth:`step` as ``V_i <- a_i V_i + b_i``: ``(a, b)``, each of
+        shape ``(n_rc, *soc.shape)``, for a step from ``soc`` (the parameters' SoC)."""
+        step_tables, _, sat = self._lanes()
+        n = self.n_rc
+        v = step_tables.at(soc, temperature_c)
+        r, c = v[:n], v[n : 2 * n]
+        a = np.exp(-dt_s / (r * c))  # tau kept outside the range: C scales by 1/f
+        f = self.resistance_factor_lanes(temperature_c)
+        if f is not None:
+            r = r * f
+        drive = np.empty_like(r)
+        drive[...] = current_a  # a linear branch's drive is the current
+        for k, i in enumerate(sat):
+            s = v[2 * n + k]
+            drive[i] = s * np.arcsinh(current_a / s)
+        return a, r * (1.0 - a) * drive
+
+    def open_voltage_lanes(
+        self,
+        soc: np.ndarray,
+        current_a: np.ndarray,
+        temperature_c: np.ndarray,
+        z_soc: np.ndarray,
+    ) -> np.ndarray:
+        """:meth:`terminal_voltage` before its branch voltages are subtracted: the OCV at
+        ``SoC - z_soc``, less ``I R_0 + eta(I)``, plus the temperature offset."""
+        _, out_tables, _ = self._lanes()
+        v = out_tables.at(soc, temperature_c)
+        f = self.resistance_factor_lanes(temperature_c)
+        drop = current_a * v[0]
+        if f is not None:
+            drop = drop * f
+        if self.r0_factor != 1.0:
+            drop = drop * self.r0_factor
+        k = 1
+        if self.params.kinetic is not None:
+            i0 = v[2] if f is None else v[2] / f
+            drop = drop + v[1] * np.arcsinh(current_a / i0)
+            k = 3
+        out = self.ocv.ocv_array(soc - z_soc) - drop
+        if self.ocv_offset is not None:
+            out = out + v[k]
+        return out
 
     # -- the identified range ----------------------------------------------------------------
     def extrapolation_c(self, temperature_c: float | None) -> float:

@@ -4,6 +4,7 @@
                [--initial-soc ocv|ref|X] [--output est.csv] [--plot fig.png | --plot-dir DIR]
                [--output-bag DIR] [--progress] [--live [--rate X]] [--jobs N]
                [--scheduler ADDRESS|local]
+               [--batch auto|always|never]
 
 INPUT is a rosbag2 bag (MCAP or sqlite3; ``--topic``, default ``/battery/state``), a CSV
 (``time_s,current_a,voltage_v[,temperature_c][,soc_ref]`` with ``--current-sign``), or a
@@ -12,7 +13,9 @@ directory of bags (processed in parallel over the cores, or on a Dask cluster wi
 battery file is chosen from the recording's ``power_supply_technology``. Every sample goes
 through the node's own tracker (input gate, initialization; ``run.py``); the start used and
 the rejected samples are printed. With a reference SoC in the input, MAE, RMSE, max error
-(after a 10-minute window) and the convergence time are printed. docs/replay.md has the rest.
+(after a 10-minute window) and the convergence time are printed. With many recordings of one
+battery (``--batch``), t2rc_ukf runs through the batch engine (``batch.py``). docs/replay.md has
+the rest.
 """
 
 from __future__ import annotations
@@ -26,9 +29,11 @@ from pathlib import Path
 
 from ..errors import SocEstimatorError
 from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS
+from ..estimators.t2rc_ukf import T2rcUkf
 from ..evaluation import Accuracy
 from ..recordings import add_recording_arguments
 from ..units import CurrentSign
+from .batch import BATCH_MIN_LANES, batch_eligible, replay_jobs_batched
 from .fleet import LOCAL, expand_url, is_url, local_copy, run_on_dask
 from .outputs import plot_results, write_csv, write_output_bag
 from .run import ReplayError, ReplayJob, ReplayResult, run_job
@@ -122,6 +127,14 @@ def build_parser() -> argparse.ArgumentParser:
         "(implies --learn-health)",
     )
     ap.add_argument(
+        "--batch",
+        choices=("auto", "always", "never"),
+        default="auto",
+        help="t2rc_ukf over many recordings through the batch engine (results within 1e-9 of "
+        f"the per-sample path): auto from {BATCH_MIN_LANES} recordings of one battery file, "
+        "offline, without --output/--plot/--plot-dir/--output-bag/--state/--learn-health",
+    )
+    ap.add_argument(
         "--jobs",
         type=int,
         default=os.cpu_count() or 1,
@@ -143,8 +156,31 @@ def _fmt(acc: Accuracy | None) -> str:
     return f"{100 * acc.mae:7.2f} {100 * acc.rmse:7.2f} {100 * acc.max_abs:7.2f} {conv}"
 
 
+def _batched(mode: str, jobs: list[ReplayJob]) -> dict[int, ReplayResult]:
+    """t2rc_ukf of the eligible jobs through the batch engine (``--batch``), by job index."""
+    eligible = [i for i, j in enumerate(jobs) if batch_eligible(j)]
+    if mode == "never" or not eligible or (mode == "auto" and len(eligible) < BATCH_MIN_LANES):
+        return {}
+    done = replay_jobs_batched([jobs[i] for i in eligible])
+    return {eligible[k]: r for k, r in done.items()}
+
+
+def _merge(
+    job: ReplayJob, done: tuple[str, list[ReplayResult], str | None], batched: ReplayResult | None
+) -> tuple[str, list[ReplayResult], str | None]:
+    """The job's results in its estimators' order, t2rc_ukf's from the batch engine."""
+    if batched is None:
+        return done
+    name, results, plot = done
+    rest = iter(results)
+    merged = [batched if e == T2rcUkf.name else next(rest) for e in job.estimators]
+    return name, merged, plot
+
+
 def _job(job: ReplayJob) -> tuple[str, list[ReplayResult], str | None]:
     """A job for the process pool or a Dask worker: replay, then write what it asks for."""
+    if not job.estimators:  # every estimator replayed elsewhere (the batch engine)
+        return job.name, [], None
     with local_copy(job) as local:
         series, battery, results = run_job(local)
     out_bag = job.extras.get("output_bag")
@@ -222,13 +258,21 @@ def main(argv: list[str] | None = None) -> int:
             replace(base, path=Path(), url=p) if isinstance(p, str) else replace(base, path=p)
             for p in inputs
         ]
+        batched = _batched("never" if args.scheduler is not None else args.batch, jobs)
+        rest = [
+            replace(j, estimators=tuple(e for e in j.estimators if e != T2rcUkf.name))
+            if i in batched
+            else j
+            for i, j in enumerate(jobs)
+        ]
         if args.scheduler is not None:
-            done = run_on_dask(_job, jobs, args.scheduler, args.jobs)
-        elif len(jobs) > 1 and args.jobs > 1 and not args.live and args.state is None:
-            with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
-                done = list(pool.map(_job, jobs))
+            done = run_on_dask(_job, rest, args.scheduler, args.jobs)
+        elif len(rest) > 1 and args.jobs > 1 and not args.live and args.state is None:
+            with ProcessPoolExecutor(max_workers=min(args.jobs, len(rest))) as pool:
+                done = list(pool.map(_job, rest))
         else:
-            done = [_job(j) for j in jobs]
+            done = [_job(j) for j in rest]
+        done = [_merge(jobs[i], d, batched.get(i)) for i, d in enumerate(done)]
     except (SocEstimatorError, OSError, RuntimeError) as exc:
         print(f"soc_replay: error: {exc}", file=sys.stderr)
         return 2

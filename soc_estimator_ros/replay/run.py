@@ -283,17 +283,33 @@ def score(series: BatterySeries, estimates: EstimateSeries) -> Accuracy | None:
         return None  # no sample with both an estimate and a reference after the window
 
 
-def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayResult]]:
-    """Read the job's input and replay it through each of its estimators."""
-    from .outputs import ProgressBar  # noqa: PLC0415 (outputs imports matplotlib lazily)
-
-    series = read_recording(job.path, job.topic, job.sign)
+def job_battery(job: ReplayJob, series: BatterySeries) -> tuple[Path, BatteryParams]:
+    """The job's battery file (``--params``, else by the recording's technology) and its
+    parameters, scaled to the job's pack."""
     battery_file = job.params or battery_file_for(series)
     battery = load_battery_params(battery_file)
     try:
         battery = scale_to_pack(battery, job.cells_in_series, job.capacity_ah)
     except ValueError as exc:  # the node's rule (node/ros_node.py), one line
         raise ReplayError(f"--cells-in-series / --capacity-ah: {exc}") from exc
+    return Path(battery_file), battery
+
+
+def check_finite(result: ReplayResult, job_name: str, estimator: str) -> None:
+    """A run that ends with a SoC that is not finite is an error (one line)."""
+    if not result.finite:
+        raise ReplayError(
+            f"{job_name}: {estimator} ends with a SoC that is not finite "
+            f"(rejected: {result.counts or 'none'})"
+        )
+
+
+def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayResult]]:
+    """Read the job's input and replay it through each of its estimators."""
+    from .outputs import ProgressBar  # noqa: PLC0415 (outputs imports matplotlib lazily)
+
+    series = read_recording(job.path, job.topic, job.sign)
+    battery_file, battery = job_battery(job, series)
     results = []
     for estimator in job.estimators:
         if estimator not in ESTIMATORS:
@@ -325,10 +341,6 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
                 job.health,
                 job.state,
             )
-        if not result.finite:
-            raise ReplayError(
-                f"{job.name}: {estimator} ends with a SoC that is not finite "
-                f"(rejected: {result.counts or 'none'})"
-            )
+        check_finite(result, job.name, estimator)
         results.append(result)
     return series, battery, results

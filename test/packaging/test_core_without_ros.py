@@ -48,6 +48,7 @@ CORE_PARTS = [
     "runtime",
     "recordings",
     "resources",
+    "batch",
 ]
 
 SCRIPT = textwrap.dedent(
