@@ -11,6 +11,7 @@ PACKAGE = "soc_estimator_ros"
 CONSOLE_SCRIPTS = [
     "soc_replay = soc_estimator_ros.replay.cli:main",
     "soc_identify = soc_estimator_ros.identification.cli:main",
+    "soc_tune = soc_estimator_ros.tuning.cli:main",
     "soc_estimator_node = soc_estimator_ros.node.ros_node:main",
 ]
 

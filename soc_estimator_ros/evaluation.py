@@ -25,10 +25,14 @@ from .series import EstimateSeries
 class SampleSeries(Protocol):
     """What :func:`run_estimator` needs: aligned arrays (``series.BatterySeries`` fits)."""
 
-    t_s: np.ndarray
-    current_a: np.ndarray
-    voltage_v: np.ndarray
-    temperature_c: np.ndarray
+    @property
+    def t_s(self) -> np.ndarray: ...
+    @property
+    def current_a(self) -> np.ndarray: ...
+    @property
+    def voltage_v(self) -> np.ndarray: ...
+    @property
+    def temperature_c(self) -> np.ndarray: ...
 
 
 def run_estimator(

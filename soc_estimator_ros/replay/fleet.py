@@ -33,6 +33,7 @@ from typing import Any, TypeVar
 from .run import ReplayError, ReplayJob
 
 T = TypeVar("T")
+J = TypeVar("J")
 
 #: ``--scheduler`` value that starts a local cluster.
 LOCAL = "local"
@@ -106,9 +107,7 @@ def local_copy(job: ReplayJob) -> Iterator[ReplayJob]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def run_on_dask(
-    fn: Callable[[ReplayJob], T], jobs: Sequence[ReplayJob], scheduler: str, workers: int
-) -> list[T]:
+def run_on_dask(fn: Callable[[J], T], jobs: Sequence[J], scheduler: str, workers: int) -> list[T]:
     """``fn`` over ``jobs`` on a Dask cluster, results in the jobs' order: the cluster at
     ``scheduler`` (an address), or a local one of ``workers`` processes (``local``)."""
     try:

@@ -41,15 +41,15 @@ ERROR_AXIS_MIN_PCT = 2.5
 class ProgressBar:
     """A text progress bar on stderr: ``soc_replay: NAME [#####.....]  50 %``."""
 
-    def __init__(self, label: str, width: int = 30) -> None:
-        self.label, self.width = label, width
+    def __init__(self, label: str, width: int = 30, prog: str = "soc_replay") -> None:
+        self.label, self.width, self.prog = label, width, prog
 
     def __call__(self, done: int, total: int) -> None:
         filled = self.width * done // max(total, 1)
         bar = "#" * filled + "." * (self.width - filled)
         end = "\n" if done >= total else ""
         sys.stderr.write(
-            f"\rsoc_replay: {self.label} [{bar}] {100 * done // max(total, 1):3d} %{end}"
+            f"\r{self.prog}: {self.label} [{bar}] {100 * done // max(total, 1):3d} %{end}"
         )
         sys.stderr.flush()
 

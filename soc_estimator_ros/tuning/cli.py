@@ -1,0 +1,225 @@
+"""``soc_tune``: tune a battery file's ``filters`` block on recordings, with cross-validation.
+
+    soc_tune RECORDING [RECORDING ...] --params FILE --output FILE [--estimator hybrid]
+             [--space KEY=LO:HI[:log] ...] [--trials 32] [--folds 3] [--seed 0]
+             [--wrong-start 0.3] [--jobs N] [--scheduler ADDRESS|local]
+
+RECORDING: bags or CSVs with a reference SoC, or directories of bags (as ``soc_replay``).
+Every candidate tuning (the file's own, then ``--trials`` random draws from the space,
+``search.py``) is scored on every recording (``objective.py``); the folds choose and judge as
+``crossval.py`` says. Printed: each fold's held-out recordings, the tuning chosen on the
+others and its held-out score beside the file's; then the tuning chosen on all recordings.
+It is written to ``--output`` (the input file with that estimator's block updated) only when
+its held-out score is no worse than the file's; otherwise nothing is written and the exit
+status is 3. The same inputs and seed give the same tuning (exit 0) or the same refusal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shlex
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..errors import SocEstimatorError
+from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
+from ..params import battery_params_to_dict, load_battery_params
+from ..recordings import read_recording
+from ..replay.cli import expand_inputs
+from ..replay.fleet import run_on_dask
+from ..replay.outputs import ProgressBar
+from .crossval import CrossValidation, cross_validate, folds
+from .objective import COVERAGE_BAND, COVERAGE_WEIGHT, score_recording
+from .search import DEFAULT_SPACES, Dimension, apply, candidates, parse_dimension
+
+#: Exit status when the tuning is refused (its held-out score is worse than the file's).
+REFUSED = 3
+
+Task = tuple[str, str, str, dict[str, float], float]  # recording, file, estimator, values, wrong
+
+
+@cache
+def _recording(path: str):  # one read per process: each recording is scored many times
+    return read_recording(Path(path))
+
+
+@cache
+def _battery(path: str):
+    return load_battery_params(Path(path))
+
+
+def _score(task: Task) -> float:
+    """One candidate on one recording (a task for the pool or a Dask worker)."""
+    recording, params, estimator, values, wrong = task
+    battery = _battery(params)
+    base = make_estimator(estimator, battery, 0.5, 0.1, battery.filters.get(estimator)).tuning
+    tuning = apply(base, values)
+    try:
+        return score_recording(_recording(recording), battery, estimator, tuning, wrong).total
+    except (FloatingPointError, np.linalg.LinAlgError):
+        return math.inf  # a tuning that breaks the filter is the worst
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="soc_tune", description="Tune a battery file's filter block with cross-validation."
+    )
+    ap.add_argument("recordings", nargs="+", help="recordings with a reference SoC, or dirs")
+    ap.add_argument("--params", type=Path, required=True, help="the battery file to tune")
+    ap.add_argument("--output", type=Path, required=True, help="the tuned battery file")
+    ap.add_argument(
+        "--estimator",
+        default=DEFAULT_ESTIMATOR,
+        choices=sorted(ESTIMATORS),
+        help=f"whose filters block (default {DEFAULT_ESTIMATOR})",
+    )
+    ap.add_argument(
+        "--space",
+        action="append",
+        default=[],
+        metavar="KEY=LO:HI[:log]",
+        help="a searched entry (repeat; KEY.i for element i of a tuple entry); default: the "
+        f"estimator's ({', '.join(sorted(DEFAULT_SPACES))})",
+    )
+    ap.add_argument("--trials", type=int, default=32, help="random candidates (default 32)")
+    ap.add_argument("--folds", type=int, default=3, help="cross-validation folds (default 3)")
+    ap.add_argument("--seed", type=int, default=0, help="candidates and folds (default 0)")
+    ap.add_argument(
+        "--wrong-start",
+        type=float,
+        default=0.3,
+        help="SoC error of the convergence run (default 0.3; 0: none)",
+    )
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--scheduler", metavar="ADDRESS", help="a Dask cluster, or 'local'")
+    ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
+    return ap
+
+
+def _space(args: argparse.Namespace) -> tuple[Dimension, ...]:
+    if args.space:
+        return tuple(parse_dimension(t) for t in args.space)
+    if args.estimator not in DEFAULT_SPACES:
+        raise ValueError(f"{args.estimator} has no default space: give --space KEY=LO:HI")
+    return DEFAULT_SPACES[args.estimator]
+
+
+def _evaluate(tasks: list[Task], args: argparse.Namespace) -> list[float]:
+    bar = ProgressBar(f"{len(tasks)} runs", prog="soc_tune")
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    if args.scheduler is not None:
+        return run_on_dask(_score, tasks, args.scheduler, args.jobs)
+    if args.jobs <= 1:
+        out = []
+        for k, t in enumerate(tasks):
+            out.append(_score(t))
+            if show:
+                bar(k + 1, len(tasks))
+        return out
+    out = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        for k, value in enumerate(pool.map(_score, tasks, chunksize=1)):
+            out.append(value)
+            if show:
+                bar(k + 1, len(tasks))
+    return out
+
+
+def _fmt(values: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in values.items()) or "the file's"
+
+
+def report(cv: CrossValidation, names: list[str], cands: list[dict[str, float]]) -> str:
+    lo, hi = COVERAGE_BAND
+    lines = [
+        f"objective J = MAE + max/2 + {COVERAGE_WEIGHT:g} x distance of the ±2σ coverage from "
+        f"[{lo:g}, {hi:g}] + min(t_converge / 600 s, 3), % SoC (lower is better)"
+    ]
+    for k, f in enumerate(cv.folds, 1):
+        held = ", ".join(names[i] for i in f.held_out)
+        lines += [
+            f"fold {k}: held out {held}",
+            f"  chosen on the others: {_fmt(cands[f.chosen])} (J {f.train_score:.3f})",
+            f"  held out: tuned J {f.held_out_score:.3f}, file's J {f.file_held_out_score:.3f}",
+        ]
+    lines += [
+        f"held-out mean: tuned J {cv.held_out_score:.3f}, file's J {cv.file_held_out_score:.3f}",
+        f"chosen on all: {_fmt(cands[cv.chosen])} (J {cv.chosen_score:.3f}; file's "
+        f"{cv.file_score:.3f})",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        inputs = expand_inputs(args.recordings)
+        if any(isinstance(p, str) for p in inputs):
+            raise ValueError("soc_tune reads local recordings (fetch URLs first)")
+        paths = [str(p) for p in inputs]
+        battery = load_battery_params(args.params)
+        space = _space(args)
+        block0 = battery.filters.get(args.estimator)
+        base = make_estimator(args.estimator, battery, 0.5, 0.1, block0).tuning
+        for d in space:
+            if d.key not in base:
+                raise ValueError(
+                    f"--space {d.label}: {args.estimator} has no tuning entry {d.key!r} "
+                    f"(known: {', '.join(sorted(base))})"
+                )
+        apply(base, {d.label: d.lo for d in space})  # a tuple entry's element exists
+        folds(len(paths), args.folds, args.seed)  # before any run: k fits the recordings
+        for p in paths:
+            if read_recording(Path(p)).soc_ref is None:
+                raise ValueError(f"{p}: no reference SoC to tune on")
+        if args.trials < 1:
+            raise ValueError("--trials must be >= 1")
+        cands = candidates(space, args.trials, args.seed)
+        tasks: list[Task] = [
+            (p, str(args.params), args.estimator, c, args.wrong_start) for c in cands for p in paths
+        ]
+        values = _evaluate(tasks, args)
+        scores = np.array(values).reshape(len(cands), len(paths))
+        cv = cross_validate(scores, args.folds, args.seed)
+    except (SocEstimatorError, ValueError, KeyError, IndexError, TypeError, OSError) as exc:
+        print(f"soc_tune: error: {exc}", file=sys.stderr)
+        return 2
+    names = [Path(p).name for p in paths]
+    print(report(cv, names, cands))
+    if not cv.accepted:
+        print(
+            f"soc_tune: refused: the tuning's held-out J {cv.held_out_score:.3f} is worse than "
+            f"the file's {cv.file_held_out_score:.3f}; nothing written",
+            file=sys.stderr,
+        )
+        return REFUSED
+    data = battery_params_to_dict(battery)
+    block = dict(battery.filters.get(args.estimator, {}))
+    block.update(
+        {k: v for k, v in apply(base, cands[cv.chosen]).items() if k in {d.key for d in space}}
+    )
+    data.setdefault("filters", {})[args.estimator] = {
+        k: list(v) if isinstance(v, tuple) else v for k, v in block.items()
+    }
+    command = shlex.join(["soc_tune", *(argv if argv is not None else sys.argv[1:])])
+    header = (
+        f"# Tuned by soc_tune ({args.estimator}) on {', '.join(names)}: held-out J "
+        f"{cv.held_out_score:.3f} vs the file's {cv.file_held_out_score:.3f}.\n"
+        f"# Regenerate: {command}\n"
+    )
+    text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
+    args.output.write_text(header + text)
+    load_battery_params(args.output)  # what was written loads as is
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
