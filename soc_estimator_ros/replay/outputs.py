@@ -194,18 +194,30 @@ def _plot_time_to_empty(ax: Any, series: BatterySeries, results: list[ReplayResu
     ax.legend(fontsize=8, ncol=3)
 
 
+def cell_csv_columns(cells: int) -> list[str]:
+    """The columns ``--output`` adds with cell voltages: the pack's lumped SoC, then every
+    cell's SoC (0..1); ``soc`` and ``soc_std`` are then the usable discharge SoC's."""
+    return ["soc_lumped", *(f"cell_soc_{k + 1}" for k in range(cells))]
+
+
 def write_csv(path: Path, result: ReplayResult) -> None:
     """:data:`CSV_COLUMNS` per sample: the estimate, then the runtime monitor's latest
     prediction (NaN before the first, or when the replay made none; ``inf``: never), then the
-    learned health (NaN without ``--learn-health``)."""
+    learned health (NaN without ``--learn-health``); with cell voltages
+    :func:`cell_csv_columns` after them."""
     e = result.estimates
     n = len(e.t_s)
     rt = result.runtime
     columns = (*CSV_RUNTIME_COLUMNS, *HEALTH_COLUMNS)
     runtime = [rt[c] if rt is not None else np.full(n, math.nan) for c in columns]
+    cells: list[np.ndarray] = []
+    header = list(CSV_COLUMNS)
+    if e.cell_soc is not None and e.soc_lumped is not None:
+        cells = [e.soc_lumped, *(e.cell_soc[:, k] for k in range(e.cell_soc.shape[1]))]
+        header += cell_csv_columns(e.cell_soc.shape[1])
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(CSV_COLUMNS)
+        w.writerow(header)
         for row in zip(
             e.t_s,
             e.soc,
@@ -214,6 +226,7 @@ def write_csv(path: Path, result: ReplayResult) -> None:
             e.voltage_pred_v,
             e.current_a,
             *runtime,
+            *cells,
             strict=True,
         ):
             w.writerow([f"{v:.6g}" if k else f"{v:.3f}" for k, v in enumerate(row)])
@@ -266,6 +279,10 @@ def plot_results(path: Path, series: BatterySeries, results: list[ReplayResult])
     for k, r in enumerate(results):
         e = r.estimates
         (line,) = axes[0].plot(t_h, 100 * e.soc, lw=1, label=e.estimator)
+        if e.cell_soc is not None:  # the cells, thin, in the estimator's colour
+            axes[0].plot(t_h, 100 * e.cell_soc, lw=0.4, color=line.get_color(), alpha=0.6)
+            if series.cell_soc_ref is not None and k == 0:
+                axes[0].plot(t_h, 100 * series.cell_soc_ref, "k:", lw=0.5)
         axes[0].fill_between(
             t_h,
             100 * (e.soc - 2 * e.soc_std),

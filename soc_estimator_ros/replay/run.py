@@ -175,15 +175,23 @@ def track_series_runtime(
     pack = tracker.pack_serial(series.serial_number)
     every = max(1, n // 50)
     last = None
+    cell_v = series.cell_voltage_v
+    n_cells = 0 if cell_v is None else cell_v.shape[1]
+    cell_soc = np.full((n, n_cells), math.nan)
+    cell_std = np.full((n, n_cells), math.nan)
+    lumped = np.full(n, math.nan)
+    cells = None
     for k in range(n):
         sample = Sample(
             int(series.stamp_ns[k]),
             float(series.current_a[k]),
             float(series.voltage_v[k]),
             float(series.temperature_c[k]),
+            cell_voltage_v=() if cell_v is None else tuple(float(v) for v in cell_v[k]),
         )
         result = tracker.process(sample)
         if result.estimate is not None:
+            cells = result.cells
             last = result.estimate
             status.append(last.status.value)
             v_pred[k], innov[k], nis[k] = last.voltage_pred_v, last.innovation_v, last.nis
@@ -194,6 +202,10 @@ def track_series_runtime(
         if last is not None:
             soc[k], std[k] = last.soc, last.soc_std
             x[k], p[k] = last.x, last.p
+        if cells is not None and last is not None:  # the usable SoC is the published one
+            lumped[k] = soc[k]
+            soc[k], std[k] = cells.usable_soc, cells.usable_soc_std
+            cell_soc[k], cell_std[k] = cells.soc, cells.soc_std
         if result.runtime is not None:
             report = result.runtime.fields()
         if report is not None:
@@ -221,6 +233,9 @@ def track_series_runtime(
         x=x,
         p=p,
         state_names=tracker.estimator.state_names,
+        cell_soc=cell_soc if n_cells else None,
+        cell_soc_std=cell_std if n_cells else None,
+        soc_lumped=lumped if n_cells else None,
     )
     runtime = RuntimeSeries(rt, full, tracker.battery.limits.soc_min)
     start = start or "no sample accepted"
