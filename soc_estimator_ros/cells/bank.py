@@ -171,10 +171,9 @@ class CellBank:
         self.last = None
 
     def accept(self, cell_voltage_v: np.ndarray) -> np.ndarray:
-        """Which readings are usable (finite, not absurd)."""
+        """Which readings are usable (finite, not absurd; a NaN compares False)."""
         v = cell_voltage_v
-        with np.errstate(invalid="ignore"):
-            return np.isfinite(v) & (v >= self._absurd_lo) & (v <= self._absurd_hi)
+        return (v >= self._absurd_lo) & (v <= self._absurd_hi)
 
     def step(
         self,
@@ -210,29 +209,28 @@ class CellBank:
         self, v: np.ndarray, ok: np.ndarray, pack_soc: float, pack_soc_var: float
     ) -> CellEstimate:
         f = self.filter
-        soc = pack_soc + f.soc_offset
-        var = pack_soc_var + f.soc_offset_var
-        q = f.capacity_factor
+        soc = pack_soc + f.x[:, 0]
+        var = pack_soc_var + f.p[:, 0, 0]
+        q = 1.0 + f.x[:, 1]
         remaining = soc * q
         room = (1.0 - soc) * q
-        weakest = int(np.argmin(remaining))
-        strongest = int(np.argmin(room))
+        weakest = int(remaining.argmin())
+        strongest = int(room.argmin())
+        shown = np.where(ok, v, np.nan)
         good = v[ok]
-        with np.errstate(invalid="ignore"):
-            under = ok & (v < self.v_min)
-            over = ok & (v > self.v_max)
+        spread = float(good.max() - good.min()) if good.size >= 2 else math.nan
         return CellEstimate(
             soc=soc,
             soc_std=np.sqrt(np.maximum(var, 0.0)),
-            voltage_v=np.where(ok, v, np.nan),
+            voltage_v=shown,
             accepted=ok,
-            usable_soc=float(np.clip(remaining[weakest], 0.0, 1.0)),
-            usable_soc_std=float(math.sqrt(max(var[weakest], 0.0))),
-            usable_charge_soc=float(np.clip(1.0 - room[strongest], 0.0, 1.0)),
+            usable_soc=min(max(float(remaining[weakest]), 0.0), 1.0),
+            usable_soc_std=math.sqrt(max(float(var[weakest]), 0.0)),
+            usable_charge_soc=min(max(1.0 - float(room[strongest]), 0.0), 1.0),
             weakest=weakest,
             strongest=strongest,
-            imbalance_soc=float(np.max(soc) - np.min(soc)),
-            spread_v=float(np.max(good) - np.min(good)) if good.size >= 2 else math.nan,
-            under_voltage=under,
-            over_voltage=over,
+            imbalance_soc=float(soc.max() - soc.min()),
+            spread_v=spread,
+            under_voltage=ok & (v < self.v_min),
+            over_voltage=ok & (v > self.v_max),
         )

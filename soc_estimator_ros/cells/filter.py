@@ -58,6 +58,9 @@ SLOPE_STEP_SOC = 1e-3
 #: An innovation beyond this many of its std is not used (a reading the model cannot explain,
 #: e.g. one cell's contactor bouncing); the prediction stands.
 INNOVATION_GATE_STD = 8.0
+#: Which covariance entries a Schmidt update changes (all but the considered capacity's).
+_SCHMIDT_W = np.ones((3, 3))
+_SCHMIDT_W[1, 1] = 0.0
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,8 @@ class CellDeltaFilter:
         self.p = np.repeat(p0[None, :, :], n, axis=0)
         self.innovation_v = np.full(n, np.nan)
         self.gated = np.zeros(n, dtype=np.int64)
+        self._pts = np.empty(3 * n + 1)
+        self._r_const = config.voltage_std_v**2
 
     def predict(self, current_a: float, dt_s: float) -> None:
         """Eq. (1) over ``dt_s`` with the held ``current_a`` (discharge positive)."""
@@ -138,40 +143,40 @@ class CellDeltaFilter:
         """Eq. (2) for every ``valid`` cell (at least two are needed for a mean); ``dt_s`` the
         time since the previous reading (the noise is correlated over ``error_corr_s``)."""
         self.innovation_v[:] = np.nan
-        n_valid = int(np.count_nonzero(valid))
+        n_valid = int(valid.sum())
         if n_valid < 2:
             return
         c = self.config
+        n = c.cells
         v = np.where(valid, cell_voltage_v, 0.0)
         y = v - v.sum() / n_valid
-        soc_i = soc_bar + self.x[:, 0]
-        ocv = self.ocv
-        pts = np.concatenate(([soc_bar], soc_i, soc_i + SLOPE_STEP_SOC, soc_i - SLOPE_STEP_SOC))
-        o = ocv.ocv_array(pts)
-        n = c.cells
-        h = o[1 : n + 1] - o[0] - current_a * self.x[:, 2]
-        slope = (o[n + 1 : 2 * n + 1] - o[2 * n + 1 :]) / (2.0 * SLOPE_STEP_SOC)
-        r = (
-            c.voltage_std_v**2
-            + (c.voltage_std_per_a * current_a) ** 2
-            + (c.ocv_soc_std * slope) ** 2
-        ) * ((1.0 - 1.0 / n_valid) * max(1.0, c.error_corr_s / dt_s if dt_s > 0.0 else 1.0))
+        x = self.x
+        pts = self._pts  # [s_bar, s_i, s_i + h, s_i - h]: one interpolation for all
+        pts[0] = soc_bar
+        np.add(x[:, 0], soc_bar, out=pts[1 : n + 1])
+        np.add(pts[1 : n + 1], SLOPE_STEP_SOC, out=pts[n + 1 : 2 * n + 1])
+        np.subtract(pts[1 : n + 1], SLOPE_STEP_SOC, out=pts[2 * n + 1 :])
+        o = self.ocv.ocv_array(pts)
+        h = o[1 : n + 1] - o[0] - current_a * x[:, 2]
+        slope = (o[n + 1 : 2 * n + 1] - o[2 * n + 1 :]) * (0.5 / SLOPE_STEP_SOC)
+        scale = (1.0 - 1.0 / n_valid) * max(1.0, c.error_corr_s / dt_s if dt_s > 0.0 else 1.0)
+        r = self._r_const + (c.ocv_soc_std * slope) ** 2 + (c.voltage_std_per_a * current_a) ** 2
+        r *= scale
         p = self.p
         # H = [slope, 0, -I]: P H^T and H P H^T without forming H.
         ph = p[:, :, 0] * slope[:, None] - p[:, :, 2] * current_a
         s = ph[:, 0] * slope - ph[:, 2] * current_a + r
         innov = y - h
-        ok = valid & (innov**2 <= INNOVATION_GATE_STD**2 * s)
+        ok = valid & (innov * innov <= INNOVATION_GATE_STD**2 * s)
         self.gated += valid & ~ok
-        k = np.where(ok[:, None], ph / s[:, None], 0.0)
+        g = np.where(ok, 1.0 / s, 0.0)
+        k = ph * g[:, None]
         k[:, 1] = 0.0  # Schmidt: the capacity deviation is considered, never estimated
-        self.x += k * innov[:, None]
-        # Joseph form (the Schmidt gain is not the optimal one): A P A^T + r K K^T, A = I - K H.
-        a = np.repeat(np.eye(3)[None, :, :], n, axis=0)
-        a[:, :, 0] -= k * slope[:, None]
-        a[:, :, 2] += k * current_a
-        p = a @ p @ np.transpose(a, (0, 2, 1)) + r[:, None, None] * (k[:, :, None] * k[:, None, :])
-        self.p = 0.5 * (p + np.transpose(p, (0, 2, 1)))
+        x += k * innov[:, None]
+        # Joseph form for the Schmidt gain K = M P H^T / S (M masks the capacity out), written
+        # out: (I - KH) P (I - KH)^T + K R K^T = P - (P H^T H P / S) (*) W, with W all ones
+        # but 0 at (capacity, capacity): the considered variance stays, P stays symmetric.
+        p -= (ph[:, :, None] * ph[:, None, :]) * (g[:, None, None] * _SCHMIDT_W)
         self.innovation_v = np.where(valid, innov, np.nan)
 
     def skip(self, cell_voltage_v: np.ndarray, valid: np.ndarray) -> None:
