@@ -86,10 +86,12 @@ class EstimateSeries:
     p: np.ndarray  # (n, dim_x, dim_x): its covariance
     state_names: tuple[str, ...]
     #: With cell voltages (``cells/``): every cell's SoC and std, (n, cells); ``soc`` and
-    #: ``soc_std`` are then the usable discharge SoC and ``soc_lumped`` the pack's estimate.
+    #: ``soc_std`` are then the usable discharge SoC and ``soc_lumped``, ``soc_lumped_std``
+    #: the pack's estimate.
     cell_soc: np.ndarray | None = None
     cell_soc_std: np.ndarray | None = None
     soc_lumped: np.ndarray | None = None
+    soc_lumped_std: np.ndarray | None = None
 
 
 #: The runtime predictions a replay keeps per sample (``soc_replay --output`` columns first).

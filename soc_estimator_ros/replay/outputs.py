@@ -59,7 +59,8 @@ def write_output_bag(
 ) -> None:
     """The input and the estimates as a new bag (MCAP), on the node's topics and types.
 
-    ``/battery/state`` and ``/battery/soc_reference`` (when the input has one) as recorded;
+    ``/battery/state`` (with the cells' voltages when the input has them) and
+    ``/battery/soc_reference`` (when the input has one) as recorded;
     ``/battery/soc`` as the node publishes it (``messages.estimate_state``) and
     ``/battery/soc_estimate``; with several estimators, each one's topics under
     ``/<estimator>/``. Rows before an estimator's first accepted sample are not written.
@@ -70,7 +71,9 @@ def write_output_bag(
     n = len(series)
     stamps = [int(s) for s in series.stamp_ns]
 
-    def bridge(k: int, **extra: Any) -> Any:
+    cells = series.cell_voltage_v
+
+    def bridge(k: int, with_cells: bool = False, **extra: Any) -> Any:
         return battery_state_message(
             bridge_state(
                 stamps[k],
@@ -80,11 +83,12 @@ def write_output_bag(
                 design_capacity_ah=battery.nominal_capacity_ah,
                 technology=tech,
                 **extra,
-            )
+            ),
+            cells[k] if with_cells and cells is not None else (),
         )
 
     topics: list[tuple[str, str, Any]] = [
-        (STATE_TOPIC, BATTERY_STATE, ((stamps[k], bridge(k)) for k in range(n)))
+        (STATE_TOPIC, BATTERY_STATE, ((stamps[k], bridge(k, True)) for k in range(n)))
     ]
     if series.soc_ref is not None:
         ref = series.soc_ref
@@ -122,11 +126,14 @@ def write_output_bag(
 
         def est_msgs(e: EstimateSeries = e, rows: list[int] = rows) -> Iterator[Any]:
             label = layout_label(e.state_names)
+            # The vector's soc is the pack's own, as the node's (the usable one is /battery/soc).
+            soc = e.soc if e.soc_lumped is None else e.soc_lumped
+            std = e.soc_std if e.soc_lumped_std is None else e.soc_lumped_std
             for k in rows:
                 row = estimate_row(
                     stamps[k] * 1e-9,
-                    float(e.soc[k]),
-                    float(e.soc_std[k]) ** 2,
+                    float(soc[k]),
+                    float(std[k]) ** 2,
                     float(e.voltage_pred_v[k]),
                     float(e.innovation_v[k]),
                     float(e.nis[k]),

@@ -180,6 +180,7 @@ def track_series_runtime(
     cell_soc = np.full((n, n_cells), math.nan)
     cell_std = np.full((n, n_cells), math.nan)
     lumped = np.full(n, math.nan)
+    lumped_std = np.full(n, math.nan)
     cells = None
     for k in range(n):
         sample = Sample(
@@ -203,7 +204,7 @@ def track_series_runtime(
             soc[k], std[k] = last.soc, last.soc_std
             x[k], p[k] = last.x, last.p
         if cells is not None and last is not None:  # the usable SoC is the published one
-            lumped[k] = soc[k]
+            lumped[k], lumped_std[k] = soc[k], std[k]
             soc[k], std[k] = cells.usable_soc, cells.usable_soc_std
             cell_soc[k], cell_std[k] = cells.soc, cells.soc_std
         if result.runtime is not None:
@@ -236,6 +237,7 @@ def track_series_runtime(
         cell_soc=cell_soc if n_cells else None,
         cell_soc_std=cell_std if n_cells else None,
         soc_lumped=lumped if n_cells else None,
+        soc_lumped_std=lumped_std if n_cells else None,
     )
     runtime = RuntimeSeries(rt, full, tracker.battery.limits.soc_min)
     start = start or "no sample accepted"

@@ -336,3 +336,30 @@ def test_csv_cell_columns_contract(tmp_path, capsys):
     # soc is the usable SoC: never above the fullest cell's, and apart from the lumped one.
     assert np.all(soc <= cells.max(axis=1) + 0.05)
     assert np.max(np.abs(soc - lumped)) > 0.005
+
+
+def test_output_bag_carries_the_cell_voltages(tmp_path, capsys):
+    """--output-bag with a 4S mission: /battery/state keeps cell_voltage, /battery/soc is the
+    usable SoC (the node's percentage), /battery/soc_estimate's soc the pack's own."""
+    bag = bag_path("lfp4s_cells_2_partial")
+    out = tmp_path / "out_bag"
+    est_csv = tmp_path / "est.csv"
+    lfp = REPO_ROOT / "config" / "lfp_12v6ah.yaml"
+    args = [str(bag), "--params", str(lfp), "--output", str(est_csv), "--output-bag", str(out)]
+    code, _, _ = run(args, capsys)
+    assert code == 0
+    cells, soc, est = [], [], []
+    with AnyReader([out]) as reader:
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/battery/state":
+                cells.append(len(msg.cell_voltage))
+            elif conn.topic == "/battery/soc":
+                soc.append(msg.percentage)
+            elif conn.topic == "/battery/soc_estimate":
+                est.append(decode_estimate(msg)["soc"])
+    assert set(cells) == {4}
+    with est_csv.open() as fh:
+        rows = list(csv.DictReader(fh))
+    np.testing.assert_allclose(soc, [float(r["soc"]) for r in rows], atol=1e-6)
+    np.testing.assert_allclose(est, [float(r["soc_lumped"]) for r in rows], atol=1e-5)
