@@ -40,8 +40,8 @@ the table, in SoC, so a steep end of the curve does not pin ``d`` to a millivolt
 ``(1 - 1/n)`` (the mean holds ``1/n`` of the cell's own
 reading) and by ``max(1, tau / dt)``: the errors are not white (a cell relaxing from its own
 polarization, its own OCV curve), they last ``tau`` (``error_corr_s``); read as white, 1200
-readings of a 20-min rest on the plateau pulled the weakest cell 3.7 points off, believing
-itself within 0.3. A cell whose reading is missing this sample is only predicted.
+readings of a 20-min rest on the plateau pulled the weakest cell 3.7 points off while its
+deviation's std said 0.3. A cell whose reading is missing this sample is only predicted.
 """
 
 from __future__ import annotations
