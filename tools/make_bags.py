@@ -16,6 +16,12 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
     python tools/make_bags.py --aged --out /work/health_corpus [--chemistry lfp sla] \
         [--only lfp_aged75] --jobs 1     # battery health: fresh and aged packs' missions
     python tools/make_bags.py --sized --out /work/health_corpus --jobs 1   # 24 V packs
+    python tools/make_bags.py --cells --out bags --jobs 2   # 4S LFP packs cell by cell
+
+Series packs cell by cell (``--cells``; bags/README.md, "Series packs cell by cell"): each cell
+of a 4S LFP pack is its own PyBaMM simulation carrying the pack current, with a cell-to-cell
+spread of capacity, resistance and initial SoC (:data:`CELLS_SPECS`, :func:`simulate_cells`);
+the cell voltages go through a per-cell ADC into ``cell_voltage``.
 
 Battery health (``--aged``, ``--sized``; bags/README.md, "Aged packs and packs of other
 sizes"): each pack of :data:`HEALTH_PACKS` (LFP aged by loss of lithium inventory and active
