@@ -92,6 +92,8 @@ class EstimateSeries:
     cell_soc_std: np.ndarray | None = None
     soc_lumped: np.ndarray | None = None
     soc_lumped_std: np.ndarray | None = None
+    #: The estimate vector's ``cell.*`` values per row (``cells.cell_field_names`` order).
+    cell_fields: np.ndarray | None = None
 
 
 #: The runtime predictions a replay keeps per sample (``soc_replay --output`` columns first).

@@ -125,7 +125,9 @@ def write_output_bag(
                 yield stamps[k], battery_state_message(fields)
 
         def est_msgs(e: EstimateSeries = e, rows: list[int] = rows) -> Iterator[Any]:
-            label = layout_label(e.state_names)
+            cells = e.cell_fields
+            n_cells = 0 if e.cell_soc is None else e.cell_soc.shape[1]
+            label = layout_label(e.state_names, cells=n_cells)
             # The vector's soc is the pack's own, as the node's (the usable one is /battery/soc).
             soc = e.soc if e.soc_lumped is None else e.soc_lumped
             std = e.soc_std if e.soc_lumped_std is None else e.soc_lumped_std
@@ -140,6 +142,8 @@ def write_output_bag(
                     e.x[k],
                     e.p[k],
                 )
+                if cells is not None:
+                    row += [float(v) for v in cells[k]]
                 yield stamps[k], float64_array_message(label, row)
 
         topics.append((f"{prefix}/battery/soc", BATTERY_STATE, soc_msgs()))

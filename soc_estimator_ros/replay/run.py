@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cells import cell_field_names
 from ..errors import SocEstimatorError
 from ..estimators import ESTIMATORS
 from ..evaluation import Accuracy, accuracy
@@ -179,6 +180,7 @@ def track_series_runtime(
     n_cells = 0 if cell_v is None else cell_v.shape[1]
     cell_soc = np.full((n, n_cells), math.nan)
     cell_std = np.full((n, n_cells), math.nan)
+    cell_fields = np.full((n, len(cell_field_names(n_cells)) if n_cells else 0), math.nan)
     lumped = np.full(n, math.nan)
     lumped_std = np.full(n, math.nan)
     cells = None
@@ -207,6 +209,7 @@ def track_series_runtime(
             lumped[k], lumped_std[k] = soc[k], std[k]
             soc[k], std[k] = cells.usable_soc, cells.usable_soc_std
             cell_soc[k], cell_std[k] = cells.soc, cells.soc_std
+            cell_fields[k] = list(cells.fields().values())
         if result.runtime is not None:
             report = result.runtime.fields()
         if report is not None:
@@ -236,6 +239,7 @@ def track_series_runtime(
         state_names=tracker.estimator.state_names,
         cell_soc=cell_soc if n_cells else None,
         cell_soc_std=cell_std if n_cells else None,
+        cell_fields=cell_fields if n_cells else None,
         soc_lumped=lumped if n_cells else None,
         soc_lumped_std=lumped_std if n_cells else None,
     )

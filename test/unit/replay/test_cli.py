@@ -340,7 +340,8 @@ def test_csv_cell_columns_contract(tmp_path, capsys):
 
 def test_output_bag_carries_the_cell_voltages(tmp_path, capsys):
     """--output-bag with a 4S mission: /battery/state keeps cell_voltage, /battery/soc is the
-    usable SoC (the node's percentage), /battery/soc_estimate's soc the pack's own."""
+    usable SoC (the node's percentage), /battery/soc_estimate's soc the pack's own and its
+    ``cell.*`` values the cells' (cell.usable_soc the percentage)."""
     bag = bag_path("lfp4s_cells_2_partial")
     out = tmp_path / "out_bag"
     est_csv = tmp_path / "est.csv"
@@ -348,7 +349,7 @@ def test_output_bag_carries_the_cell_voltages(tmp_path, capsys):
     args = [str(bag), "--params", str(lfp), "--output", str(est_csv), "--output-bag", str(out)]
     code, _, _ = run(args, capsys)
     assert code == 0
-    cells, soc, est = [], [], []
+    cells, soc, est, usable = [], [], [], []
     with AnyReader([out]) as reader:
         for conn, _, raw in reader.messages():
             msg = reader.deserialize(raw, conn.msgtype)
@@ -357,8 +358,11 @@ def test_output_bag_carries_the_cell_voltages(tmp_path, capsys):
             elif conn.topic == "/battery/soc":
                 soc.append(msg.percentage)
             elif conn.topic == "/battery/soc_estimate":
-                est.append(decode_estimate(msg)["soc"])
+                decoded = decode_estimate(msg)
+                est.append(decoded["soc"])
+                usable.append(decoded["cell.usable_soc"])
     assert set(cells) == {4}
+    np.testing.assert_allclose(soc, usable, atol=1e-6)  # percentage is float32
     with est_csv.open() as fh:
         rows = list(csv.DictReader(fh))
     np.testing.assert_allclose(soc, [float(r["soc"]) for r in rows], atol=1e-6)
