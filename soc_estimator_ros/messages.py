@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from .cells.bank import CellEstimate, cell_field_names
 from .estimators.base import Estimate
 from .health.monitor import HEALTH_FIELDS
 from .params import BatteryParams, Limits
@@ -255,21 +256,27 @@ ESTIMATE_FIELDS = (
 )
 
 
-def estimate_labels(state_names: Sequence[str], health: bool = False) -> list[str]:
+def estimate_labels(state_names: Sequence[str], health: bool = False, cells: int = 0) -> list[str]:
     """Labels of the estimate vector for an estimator's state names; with ``health`` the
-    learned health follows (``health.<name>``, :data:`~soc_estimator_ros.health.HEALTH_FIELDS`)."""
+    learned health follows (``health.<name>``, :data:`~soc_estimator_ros.health.HEALTH_FIELDS`),
+    then with ``cells`` cells the cells' (``cell.<name>``,
+    :func:`~soc_estimator_ros.cells.cell_field_names`: ``cell.soc_1`` ... ``cell.soc_N``,
+    ``cell.soc_std_1`` ..., ``cell.usable_soc``, ``cell.usable_soc_std``,
+    ``cell.usable_charge_soc``, ``cell.weakest`` (1-based), ``cell.imbalance_soc``,
+    ``cell.spread_v``). ``soc`` stays the pack's lumped estimate."""
     names = list(state_names)
     return [
         *ESTIMATE_FIELDS,
         *(f"x.{n}" for n in names),
         *(f"P.{a}.{b}" for a in names for b in names),
         *((f"health.{k}" for k in HEALTH_FIELDS) if health else ()),
+        *(f"cell.{k}" for k in (cell_field_names(cells) if cells else ())),
     ]
 
 
-def layout_label(state_names: Sequence[str], health: bool = False) -> str:
+def layout_label(state_names: Sequence[str], health: bool = False, cells: int = 0) -> str:
     """``layout.dim[0].label`` of the estimate vector."""
-    return "fields:" + ",".join(estimate_labels(state_names, health))
+    return "fields:" + ",".join(estimate_labels(state_names, health, cells))
 
 
 def estimate_row(
@@ -290,14 +297,18 @@ def estimate_row(
 
 
 def estimate_vector(
-    stamp_s: float, est: Estimate, health: Mapping[str, float] | None = None
+    stamp_s: float,
+    est: Estimate,
+    health: Mapping[str, float] | None = None,
+    cells: CellEstimate | None = None,
 ) -> list[float]:
     """The estimate vector of one :class:`Estimate`, and the learned ``health``
-    (``HealthMonitor.fields()``) when given."""
+    (``HealthMonitor.fields()``) and the ``cells`` when given."""
     row = estimate_row(
         stamp_s, est.soc, est.soc_var, est.voltage_pred_v, est.innovation_v, est.nis, est.x, est.p
     )
-    return row + ([float(health[k]) for k in HEALTH_FIELDS] if health is not None else [])
+    row += [float(health[k]) for k in HEALTH_FIELDS] if health is not None else []
+    return row + (list(cells.fields().values()) if cells is not None else [])
 
 
 def decode_estimate(msg: Any) -> dict[str, float]:

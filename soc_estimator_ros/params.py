@@ -160,6 +160,80 @@ class HealthSettings:
     soh_dead: float = 0.6
 
 
+@dataclass(frozen=True)
+class CellSettings:
+    """The optional ``cells:`` section: the cells of a series pack (``cells/``), used when the
+    bridge sends ``cell_voltage``.
+
+    Every entry has a default (an entry the file leaves out takes it). ``cell_voltage_min_v``
+    and ``cell_voltage_max_v`` of 0 mean the pack's limits divided by ``cells_in_series``
+    (LFP 2.50 / 3.65 V, SLA 1.75 / 2.45 V); seed 001's BMS protects each cell against
+    over-voltage and deep discharge but names no per-cell voltages.
+
+    Attributes:
+        imbalance_soc_warn, imbalance_soc_error: max - min cell SoC (fraction) at which
+            diagnostics warn and err.
+        spread_v_warn, spread_v_error: max - min cell voltage (V) likewise.
+        cell_voltage_min_v, cell_voltage_max_v: a cell's under- and over-voltage limits (V).
+        absurd_margin_v: a cell reading more than this outside those limits (or not finite)
+            is rejected for that cell alone (V).
+        soc_spread_std: the prior std of a cell's SoC about the pack's (fraction; 0.05, the
+            spread of a pack balanced at the factory).
+        capacity_spread_std: the prior std of a cell's capacity about the pack's (fraction).
+        resistance_spread_std_ohm: the prior std of a cell's resistance about the pack's
+            share (ohm; 0: 20 % of the file's 1-C instantaneous drop per ampere, per cell).
+        voltage_std_v: a cell reading's noise and model error at rest (V).
+        voltage_std_per_a: the part that grows with the current (V per A): the cells'
+            polarization differs by more than their ``R_0``.
+        soc_walk_per_hour: the cell SoC deviation's random walk (fraction per sqrt(hour)).
+        ocv_soc_std: how far a cell's own OCV curve may sit from the table, in SoC (fraction).
+        rest_current_c_rate: |current| (C) at or below which the cells are read (the robot
+            stopped).
+        rest_min_s: ... once it has lasted this long (s).
+        error_corr_s: how long a cell reading's error lasts (s; ``cells/filter.py``).
+    """
+
+    imbalance_soc_warn: float = 0.05
+    imbalance_soc_error: float = 0.10
+    spread_v_warn: float = 0.10
+    spread_v_error: float = 0.20
+    cell_voltage_min_v: float = 0.0
+    cell_voltage_max_v: float = 0.0
+    absurd_margin_v: float = 1.0
+    soc_spread_std: float = 0.05
+    capacity_spread_std: float = 0.03
+    resistance_spread_std_ohm: float = 0.0
+    voltage_std_v: float = 0.003
+    voltage_std_per_a: float = 0.0005
+    soc_walk_per_hour: float = 0.002
+    ocv_soc_std: float = 0.01
+    rest_current_c_rate: float = 0.1
+    rest_min_s: float = 60.0
+    error_corr_s: float = 300.0
+
+
+#: Bounds of every ``cells:`` entry (lo, hi).
+CELL_BOUNDS: dict[str, tuple[float, float]] = {
+    "imbalance_soc_warn": (0.0, 1.0),
+    "imbalance_soc_error": (0.0, 1.0),
+    "spread_v_warn": (0.0, 10.0),
+    "spread_v_error": (0.0, 10.0),
+    "cell_voltage_min_v": (0.0, 10.0),
+    "cell_voltage_max_v": (0.0, 10.0),
+    "absurd_margin_v": (0.0, 10.0),
+    "soc_spread_std": (1e-4, 0.5),
+    "capacity_spread_std": (0.0, 0.5),
+    "resistance_spread_std_ohm": (0.0, 1.0),
+    "voltage_std_v": (1e-5, 1.0),
+    "voltage_std_per_a": (0.0, 1.0),
+    "soc_walk_per_hour": (0.0, 1.0),
+    "ocv_soc_std": (0.0, 0.5),
+    "rest_current_c_rate": (0.0, 10.0),
+    "rest_min_s": (0.0, 86400.0),
+    "error_corr_s": (0.0, 86400.0),
+}
+
+
 #: Bounds of every ``health:`` entry (lo, hi).
 HEALTH_BOUNDS: dict[str, tuple[float, float]] = {
     "capacity_std_frac": (1e-4, 1.0),
@@ -229,6 +303,7 @@ class BatteryParams:
     levels: LevelSettings = field(default_factory=LevelSettings)
     charge: ChargeSettings = field(default_factory=ChargeSettings)
     health: HealthSettings = field(default_factory=HealthSettings)
+    cells: CellSettings = field(default_factory=CellSettings)
 
     def ocv_curve(self) -> OcvCurve:
         """The battery's OCV curve."""
@@ -413,6 +488,27 @@ def _parse_health(chk: _Checker, root: Mapping[str, Any]) -> HealthSettings:
     return health
 
 
+def _parse_cells(chk: _Checker, root: Mapping[str, Any]) -> CellSettings:
+    got = _optional_section(chk, root, "cells", CELL_BOUNDS)
+    cells = CellSettings(**got)
+    for warn, err in (
+        ("imbalance_soc_warn", "imbalance_soc_error"),
+        ("spread_v_warn", "spread_v_error"),
+    ):
+        if getattr(cells, err) < getattr(cells, warn):
+            raise chk.fail(
+                f"cells.{err}",
+                getattr(cells, err),
+                f"a value >= cells.{warn} ({getattr(cells, warn):g})",
+            )
+    lo, hi = cells.cell_voltage_min_v, cells.cell_voltage_max_v
+    if lo > 0.0 and hi > 0.0 and hi <= lo:
+        raise chk.fail(
+            "cells.cell_voltage_max_v", hi, f"a value > cells.cell_voltage_min_v ({lo:g})"
+        )
+    return cells
+
+
 def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     """Validate a raw YAML tree (already parsed) and build :class:`BatteryParams`."""
     chk = _Checker(source)
@@ -583,6 +679,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     levels = _parse_levels(chk, root)
     charge = _parse_charge(chk, root, limits)
     health = _parse_health(chk, root)
+    cell_settings = _parse_cells(chk, root)
     return BatteryParams(
         name=name,
         chemistry=chemistry,
@@ -605,6 +702,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         levels=levels,
         charge=charge,
         health=health,
+        cells=cell_settings,
     )
 
 
@@ -685,4 +783,8 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     health = {k: v for k, v in asdict(params.health).items() if v != defaults[k]}
     if health:  # only what differs from the defaults
         out["health"] = health
+    cell_defaults = asdict(CellSettings())
+    cells = {k: v for k, v in asdict(params.cells).items() if v != cell_defaults[k]}
+    if cells:
+        out["cells"] = cells
     return out

@@ -30,6 +30,9 @@ class BatterySeries:
         serial_number: the pack's ``serial_number`` in the first sample ("" if none).
         repeated_stamps: rows dropped on reading because they repeated the previous row's
             time (a CSV from a cell tester logs a record at both sides of a step boundary).
+        cell_voltage_v: the cells' voltages (V), ``(samples, cells)`` in series order (NaN
+            where a sample has none), or None when the bridge sent no ``cell_voltage``.
+        cell_soc_ref: the reference SoC of every cell, the same shape, or None.
     """
 
     t_s: np.ndarray
@@ -43,6 +46,8 @@ class BatterySeries:
     reference_capacity_ah: float | None = None
     serial_number: str = ""
     repeated_stamps: int = 0
+    cell_voltage_v: np.ndarray | None = None
+    cell_soc_ref: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -58,6 +63,8 @@ class BatterySeries:
             voltage_v=self.voltage_v[sl],
             temperature_c=self.temperature_c[sl],
             soc_ref=None if self.soc_ref is None else self.soc_ref[sl],
+            cell_voltage_v=None if self.cell_voltage_v is None else self.cell_voltage_v[sl],
+            cell_soc_ref=None if self.cell_soc_ref is None else self.cell_soc_ref[sl],
         )
 
 
@@ -78,6 +85,15 @@ class EstimateSeries:
     x: np.ndarray  # (n, dim_x): the state after each sample
     p: np.ndarray  # (n, dim_x, dim_x): its covariance
     state_names: tuple[str, ...]
+    #: With cell voltages (``cells/``): every cell's SoC and std, (n, cells); ``soc`` and
+    #: ``soc_std`` are then the usable discharge SoC and ``soc_lumped``, ``soc_lumped_std``
+    #: the pack's estimate.
+    cell_soc: np.ndarray | None = None
+    cell_soc_std: np.ndarray | None = None
+    soc_lumped: np.ndarray | None = None
+    soc_lumped_std: np.ndarray | None = None
+    #: The estimate vector's ``cell.*`` values per row (``cells.cell_field_names`` order).
+    cell_fields: np.ndarray | None = None
 
 
 #: The runtime predictions a replay keeps per sample (``soc_replay --output`` columns first).

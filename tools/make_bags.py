@@ -16,6 +16,12 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
     python tools/make_bags.py --aged --out /work/health_corpus [--chemistry lfp sla] \
         [--only lfp_aged75] --jobs 1     # battery health: fresh and aged packs' missions
     python tools/make_bags.py --sized --out /work/health_corpus --jobs 1   # 24 V packs
+    python tools/make_bags.py --cells --out bags --jobs 2   # 4S LFP packs cell by cell
+
+Series packs cell by cell (``--cells``; bags/README.md, "Series packs cell by cell"): each cell
+of a 4S LFP pack is its own PyBaMM simulation carrying the pack current, with a cell-to-cell
+spread of capacity, resistance and initial SoC (:data:`CELLS_SPECS`, :func:`simulate_cells`);
+the cell voltages go through a per-cell ADC into ``cell_voltage``.
 
 Battery health (``--aged``, ``--sized``; bags/README.md, "Aged packs and packs of other
 sizes"): each pack of :data:`HEALTH_PACKS` (LFP aged by loss of lithium inventory and active
@@ -79,13 +85,22 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 
+from soc_estimator_ros.messages import (  # noqa: E402
+    BATTERY_STATE,
+    FLOAT64_ARRAY,
+    bridge_state,  # noqa: E402
+)
 from soc_estimator_ros.messages import TECHNOLOGY_BY_CHEMISTRY as TECH  # noqa: E402
-from soc_estimator_ros.messages import bridge_state  # noqa: E402
 from soc_estimator_ros.recordings import (  # noqa: E402
+    CELL_REFERENCE_TOPIC,
     REFERENCE_TOPIC,
     STATE_TOPIC,
     battery_state_message,
+    float64_array_message,
     write_battery_bag,
+)
+from soc_estimator_ros.recordings import (
+    write_bag as write_rosbag,
 )
 
 EPOCH_NS = 1_777_881_600 * 1_000_000_000  # 2026-05-04 08:00:00 UTC, fixed for determinism
@@ -1764,6 +1779,325 @@ def make_health(sized: bool, chemistries: list[str], only, out_dir: Path, jobs: 
     return 0
 
 
+# -- series packs cell by cell (--cells) ----------------------------------------------------
+#: The cell-by-cell missions' sample rate (small bags: bags/ has a size cap).
+CELLS_RATE_HZ = 1.0
+#: Cell-to-cell spread (issue 25): capacity (electrode width) x1 +- 3 %, resistance x1 +- 10 %
+#: (a series resistance, ``(x - 1)`` times the cell's share of ``Pack.resistance_ohm``),
+#: initial SoC up to 5 % below the fullest cell.
+CELLS_CAPACITY_SPREAD = 0.03
+CELLS_RESISTANCE_SPREAD = 0.10
+CELLS_SOC_SPREAD = 0.05
+#: Below this weakest-cell SoC the load is capped (the robot limps home) so that a cell can be
+#: driven to its cut-off without the solver's 1.5 V event under a 38 A start-up peak.
+CELLS_LIMP_SOC = 0.25
+CELLS_LIMP_A = 4.0
+#: Every mission starts as the robot boots: the bridge and electronics on, the motors not yet
+#: (the node reads its first sample as an OCV).
+CELLS_BOOT_S = 30.0
+
+
+@dataclass(frozen=True)
+class CellAdc:
+    """A per-cell voltage ADC (a BMS front end as seed 001's LM324 dividers): 12 bits over 5 V
+    (1.22 mV steps), gain error and offset per cell, white noise."""
+
+    gain: np.ndarray
+    offset_v: np.ndarray
+    noise_v: float = 0.001
+    step_v: float = 5.0 / 4096.0
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, cells: int) -> CellAdc:
+        return cls(rng.uniform(-1e-3, 1e-3, cells), rng.uniform(-2e-3, 2e-3, cells))
+
+    def measure(self, rng: np.random.Generator, cell_v: np.ndarray) -> np.ndarray:
+        v = cell_v * (1.0 + self.gain) + self.offset_v
+        return quantize(v + rng.normal(0.0, self.noise_v, v.shape), self.step_v)
+
+    def as_dict(self) -> dict:
+        return {
+            "gain": [round(float(g), 6) for g in self.gain],
+            "offset_v": [round(float(o), 6) for o in self.offset_v],
+            "noise_v": self.noise_v,
+            "step_v": round(self.step_v, 8),
+        }
+
+
+@dataclass(frozen=True)
+class CellsSpec:
+    name: str
+    seed: int
+    temp_c: float
+    start_soc: float  # the fullest cell's
+    stop_soc: float  # the mission ends when the weakest cell's true SoC reaches this
+    rest_s: float = 0.0  # a rest half-way down (robot off, bridge on)
+    description: str = ""
+
+
+CELLS_SPECS = [
+    CellsSpec(
+        "lfp4s_cells_1_full",
+        51,
+        25.0,
+        1.0,
+        0.20,
+        1200.0,
+        "4S LFP pack simulated cell by cell: seeder mission from full (cells spread) with a "
+        "20-min stop half-way, down to the weakest cell's 20 %.",
+    ),
+    CellsSpec(
+        "lfp4s_cells_2_partial",
+        52,
+        25.0,
+        0.6,
+        0.01,
+        0.0,
+        "4S LFP pack cell by cell: starts part-charged (the fullest cell 60 %, after a 2-h "
+        "rest), seeder mission down to the weakest cell's cut-off (1 % of its charge, or its "
+        "voltage collapsing under the load, whichever comes first; the load "
+        f"capped at {CELLS_LIMP_A:g} A below {CELLS_LIMP_SOC:.0%}).",
+    ),
+    CellsSpec(
+        "lfp4s_cells_3_cold",
+        53,
+        5.0,
+        0.9,
+        0.20,
+        0.0,
+        "4S LFP pack cell by cell at 5 degC: seeder mission from 90 % (the fullest cell, "
+        "after a 2-h rest) down to the weakest cell's 20 %. Not from full: at 1 Hz the cold "
+        "pack's voltage on its top knee drifts more in a second than a 0.4 A step moves it, "
+        "which check_recording refuses.",
+    ),
+]
+
+
+def simulate_cells(spec: CellsSpec) -> dict:
+    """Each cell its own PyBaMM simulation carrying the same pack current; the pack voltage is
+    the sum of the cells'. A cell's reference SoC is over its own capacity (the bundled pack's
+    reference capacity times its capacity factor: the corpus measured it within 1 %)."""
+    base = PACKS["lfp"]
+    n = base.cells
+    spread = np.random.default_rng(spec.seed + 500)
+    cap_x = 1.0 + spread.uniform(-CELLS_CAPACITY_SPREAD, CELLS_CAPACITY_SPREAD, n)
+    res_x = 1.0 + spread.uniform(-CELLS_RESISTANCE_SPREAD, CELLS_RESISTANCE_SPREAD, n)
+    soc_off = spread.uniform(0.0, CELLS_SOC_SPREAD, n)
+    soc_off[int(spread.integers(n))] = 0.0  # one cell is the fullest
+    cell_r_ohm = base.resistance_ohm / n
+    packs = [
+        replace(
+            base,
+            cells=1,
+            cutoff_v=base.cutoff_v / n,
+            capacity_x=float(cap_x[k]),
+            series_resistance_ohm=float((res_x[k] - 1.0) * cell_r_ohm),
+        )
+        for k in range(n)
+    ]
+    caps = base_capacity_ah("lfp") * cap_x
+    sims = [PackSim(p, spec.temp_c) for p in packs]
+    socs = lambda: np.array([1.0 - s.discharged_ah / c for s, c in zip(sims, caps, strict=True)])  # noqa: E731
+    c5 = (30.0, base.pack_capacity_ah / 5.0)
+    for k, sim in enumerate(sims):  # unrecorded: each cell down to its start, then all rest
+        target = spec.start_soc - soc_off[k]
+        while 1.0 - sim.discharged_ah / caps[k] > target:
+            run_segments(sim, [c5], None)
+        run_segments(sim, [(PARK_S, 0.0)], None)
+    rng = np.random.default_rng(spec.seed)
+    work = mission(rng, base)
+    recs = [Recording() for _ in sims]
+    rate = CELLS_RATE_HZ
+    half = spec.start_soc - 0.5 * (spec.start_soc - spec.stop_soc)
+    rested = spec.rest_s <= 0.0
+    for sim, rec in zip(sims, recs, strict=True):
+        run_segments(sim, [(CELLS_BOOT_S, ELECTRONICS_A)], rec, rate)
+    while float(np.min(socs())) > spec.stop_soc:
+        duration_s, current_a = next(work)
+        if float(np.min(socs())) < CELLS_LIMP_SOC:
+            current_a = min(current_a, CELLS_LIMP_A)
+        segs = [(on_grid(duration_s, rate), current_a)]
+        if not rested and float(np.min(socs())) <= half:
+            segs.append((on_grid(spec.rest_s, rate), REST_A))
+            rested = True
+        parts = [Recording() for _ in sims]
+        try:
+            for sim, part in zip(sims, parts, strict=True):
+                run_segments(sim, segs, part, rate)
+        except RuntimeError:  # a cell collapsed under the load: its cut-off, the mission's end
+            break
+        for rec, part in zip(recs, parts, strict=True):
+            for field_name in ("t_s", "current_a", "voltage_v", "discharged_ah", "temperature_c"):
+                getattr(rec, field_name).extend(getattr(part, field_name))
+    arrays = [rec.arrays() for rec in recs]
+    t, i = arrays[0][0], arrays[0][1]
+    cell_v = np.stack([a[2] for a in arrays], axis=1)
+    cell_soc = np.stack([1.0 - a[3] / c for a, c in zip(arrays, caps, strict=True)], axis=1)
+    # Each cell's reference against its own charge; the voltage checks on the pack's voltage
+    # (a lone cell on its knee drifts more in a second than a 0.3 A step moves it).
+    for k in range(n):
+        check_recording(
+            f"{spec.name} cell {k + 1}",
+            t,
+            i,
+            cell_v.sum(axis=1),
+            cell_soc[:, k],
+            caps[k],
+            None,
+            1 / rate,
+        )
+    return {
+        "t": t,
+        "i": i,
+        "v": cell_v.sum(axis=1),
+        "cell_v": cell_v,
+        "cell_soc": cell_soc,
+        "capacity_ah": caps,
+        "capacity_x": cap_x,
+        "resistance_x": res_x,
+        "soc_offset": soc_off,
+    }
+
+
+def usable_soc(cell_soc: np.ndarray, capacity_ah: np.ndarray, pack_capacity_ah: float):
+    """The pack's usable discharge SoC: the weakest cell's remaining charge over the pack's
+    capacity, ``min_i SoC_i Q_i / Q``."""
+    return np.min(cell_soc * capacity_ah, axis=1) / pack_capacity_ah
+
+
+def build_cells(spec: CellsSpec, out_dir: str) -> dict:
+    """Simulate, check and write one cell-by-cell mission; its reference SoC is the usable one
+    over the bundled pack's reference capacity, ``/battery/cell_soc_reference`` every cell's."""
+    data = simulate_cells(spec)
+    base = PACKS["lfp"]
+    cap = base_capacity_ah("lfp")
+    rng = np.random.default_rng(spec.seed + 1000)
+    sensors = SensorModel.draw(rng)
+    adc = CellAdc.draw(rng, base.cells)
+    t, i, v = data["t"], data["i"], data["v"]
+    temp = np.full(t.size, spec.temp_c)
+    i_m, v_m, temp_m = sensors.measure(rng, i, v, temp)
+    cell_m = adc.measure(rng, data["cell_v"])
+    soc = usable_soc(data["cell_soc"], data["capacity_ah"], cap)
+    start_ns = EPOCH_NS + spec.seed * 86_400 * 1_000_000_000
+    stamps = start_ns + np.round(t * 1e9).astype(np.int64)
+    state = [
+        (
+            int(s),
+            battery_state_message(
+                bridge_state(
+                    int(s),
+                    float(vm),
+                    float(im),
+                    temperature_c=float(tm),
+                    design_capacity_ah=base.pack_capacity_ah,
+                    technology=base.technology,
+                    location="seeder_robot",
+                    serial_number="ROYPOW-12V6AH-4S-SIM",
+                ),
+                cm,
+            ),
+        )
+        for s, vm, im, tm, cm in zip(stamps, v_m, i_m, temp_m, cell_m, strict=True)
+    ]
+    reference = [
+        (
+            int(s),
+            battery_state_message(
+                bridge_state(
+                    int(s),
+                    float(vt),
+                    float(it),
+                    temperature_c=spec.temp_c,
+                    percentage=float(sc),
+                    charge_ah=float(sc * cap),
+                    capacity_ah=cap,
+                    design_capacity_ah=base.pack_capacity_ah,
+                    technology=base.technology,
+                    location="simulator_truth",
+                    serial_number="ROYPOW-12V6AH-4S-SIM",
+                ),
+                cv,
+            ),
+        )
+        for s, vt, it, sc, cv in zip(stamps, v, i, soc, data["cell_v"], strict=True)
+    ]
+    label = "fields:" + ",".join(f"cell_soc_{k + 1}" for k in range(base.cells))
+    cells = [
+        (int(s), float64_array_message(label, row))
+        for s, row in zip(stamps, data["cell_soc"], strict=True)
+    ]
+    bag = Path(out_dir) / spec.name
+    if bag.exists():
+        shutil.rmtree(bag)
+    write_rosbag(
+        bag,
+        [
+            (STATE_TOPIC, BATTERY_STATE, state),
+            (REFERENCE_TOPIC, BATTERY_STATE, reference),
+            (CELL_REFERENCE_TOPIC, FLOAT64_ARRAY, cells),
+        ],
+        storage="mcap",
+        compression="chunk",
+    )
+    # The first cell's cut-off: the mission's end when it ran the weakest cell empty.
+    cut_s = round(float(t[-1] - t[0]), 1) if spec.stop_soc < 0.05 else None
+    meta = {
+        "name": spec.name,
+        "chemistry": "lfp",
+        "kind": "cells_mission",
+        "storage": "mcap",
+        "seed": spec.seed,
+        "ambient_temperature_c": spec.temp_c,
+        "duration_s": round(float(t[-1] - t[0]), 1),
+        "samples": int(t.size),
+        "sample_rate_hz": CELLS_RATE_HZ,
+        "soc_start": round(float(soc[0]), 4),
+        "soc_end": round(float(soc[-1]), 4),
+        "reference_capacity_ah": round(cap, 4),
+        "current_max_a": round(float(np.max(i)), 2),
+        "current_min_a": round(float(np.min(i)), 2),
+        "sensors": sensors.as_dict(),
+        "cell_adc": adc.as_dict(),
+        "cells": {
+            "capacity_x": [round(float(x), 4) for x in data["capacity_x"]],
+            "capacity_ah": [round(float(x), 4) for x in data["capacity_ah"]],
+            "resistance_x": [round(float(x), 4) for x in data["resistance_x"]],
+            "initial_soc_offset": [round(float(x), 4) for x in data["soc_offset"]],
+            "soc_start": [round(float(x), 4) for x in data["cell_soc"][0]],
+            "soc_end": [round(float(x), 4) for x in data["cell_soc"][-1]],
+            "weakest_at_end": int(np.argmin(data["cell_soc"][-1] * data["capacity_ah"])) + 1,
+            "first_cutoff_s": cut_s,
+        },
+        "description": spec.description,
+    }
+    (bag / "bag.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    (bag / "README.md").write_text(
+        bag_readme(meta)
+        + f"""- Cells (in series order): capacity x{meta["cells"]["capacity_x"]}, resistance
+  x{meta["cells"]["resistance_x"]}, SoC {meta["cells"]["soc_start"]} ->
+  {meta["cells"]["soc_end"]}; per-cell ADC (`cell_voltage`): 12 bits over 5 V, noise 1 mV,
+  gain and offset in bag.yaml `cell_adc`.
+- `/battery/soc_reference` is the usable SoC (the weakest cell's remaining charge over
+  {cap:.4f} Ah); its `cell_voltage` the true cell voltages; `/battery/cell_soc_reference`
+  every cell's true SoC (over the cell's own capacity).
+"""
+    )
+    return meta
+
+
+def make_cells(only, out_dir: Path, jobs: int) -> int:
+    specs = [s for s in CELLS_SPECS if not only or s.name in only]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for m in pool.map(build_cells, specs, itertools.repeat(str(out_dir))):
+            print(
+                f"{m['name']}: {m['duration_s'] / 3600:.2f} h, usable SoC {m['soc_start']:.3f} -> "
+                f"{m['soc_end']:.3f}, weakest cell {m['cells']['weakest_at_end']}, "
+                f"{m['samples']} samples"
+            )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Simulate the bundled bags with PyBaMM.")
     ap.add_argument("--out", type=Path, default=ROOT / "bags")
@@ -1787,6 +2121,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--sized", action="store_true", help="make the missions of packs of other sizes"
     )
+    ap.add_argument(
+        "--cells", action="store_true", help="make the 4S LFP cell-by-cell missions (--cells)"
+    )
     ap.add_argument("--count", type=int, default=30, help="corpus: missions per chemistry")
     ap.add_argument("--chemistry", nargs="+", choices=sorted(PACKS), default=["lfp", "sla"])
     ap.add_argument("--seeds", type=int, nargs="+", help="corpus: these seeds, not --count")
@@ -1794,6 +2131,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.corpus:
         seeds = args.seeds or range(CORPUS_FIRST_SEED, CORPUS_FIRST_SEED + args.count)
         return make_corpus(args.chemistry, list(seeds), args.out, args.jobs)
+    if args.cells:
+        return make_cells(args.only, args.out, args.jobs)
     if args.aged or args.sized:
         return make_health(args.sized, args.chemistry, args.only, args.out, args.jobs)
     dev = args.dev or args.graphite_diffusivity_x != 1.0

@@ -12,10 +12,17 @@ subscribes to the node's ``battery/soc``. Prints, for the steady part (after ``-
 Targets (issue "Replay and evaluation"): <= 3 % of one core and p99 <= 2 ms at 100 Hz.
 ``--baseline`` runs ``relay_node.py`` (an rclpy node that only republishes each message) in
 the node's place: the floor that rclpy and the DDS put under any Python node here.
+``--cells N`` (issue 25) runs the node twice in one invocation on the same pack (the LFP file
+unless ``--battery``, its ``cells_in_series`` set to N): first without ``cell_voltage``, then
+with N cell voltages in every message, and prints both and the CPU ratio (target <= 1.5 at
+4 cells). Its input is a pack at rest (0.3 A), the cells' worst case: after 60 s of rest every
+sample runs every cell's update (``cells/bank.py``), so warm up past it: ``--cells 4
+--seconds 100 --warmup-s 65``.
 Prints numbers and asserts nothing. DDS stays on loopback with a domain id of its own.
 
     python benchmarks/perf/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
     python benchmarks/perf/node_latency.py --baseline
+    python benchmarks/perf/node_latency.py --cells 4 --seconds 100 --warmup-s 65
 """
 
 from __future__ import annotations
@@ -49,7 +56,13 @@ def peak_rss_mib(pid: int) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--estimator", default="hybrid")
-    ap.add_argument("--battery", type=Path, default=ROOT / "config" / "sla_12v5ah.yaml")
+    ap.add_argument("--battery", type=Path, default=None, help="default: SLA (LFP with --cells)")
+    ap.add_argument(
+        "--cells",
+        type=int,
+        default=0,
+        help="run without, then with this many cell voltages; print the CPU ratio",
+    )
     ap.add_argument("--rate-hz", type=float, default=100.0)
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--warmup-s", type=float, default=5.0)
@@ -64,11 +77,37 @@ def main() -> int:
         "--baseline", action="store_true", help="run relay_node.py instead: rclpy's own floor"
     )
     args = ap.parse_args()
+    if args.battery is None:
+        name = "lfp_12v6ah.yaml" if args.cells else "sla_12v5ah.yaml"
+        args.battery = ROOT / "config" / name
 
     env = dict(os.environ)
     env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id))
     os.environ.update(env)  # before rclpy is imported
 
+    import rclpy
+
+    rclpy.init()
+    try:
+        if not args.cells:
+            return 0 if measure(args, env, 0) is not None else 1
+        pack = measure(args, env, 0)
+        cells = measure(args, env, args.cells)
+        if pack is None or cells is None:
+            return 1
+        print(
+            f"CPU with {args.cells} cells / without: {cells / pack:.2f} "
+            f"({cells:.1f} % / {pack:.1f} % of one core)"
+        )
+        return 0
+    finally:
+        rclpy.try_shutdown()
+
+
+def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> float | None:
+    """One run of the node; prints its numbers and returns its CPU (% of one core), None when
+    it did not come up. ``n_cells``: cell voltages per message (0: none, as a bridge without
+    a BMS sends)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import BatteryState
@@ -95,10 +134,11 @@ def main() -> int:
         "-p",
         f"publish_rate_hz:={args.publish_rate_hz}",
     ]
+    if args.cells:  # both runs on the same pack: the file at N cells
+        cmd += ["-p", f"cells_in_series:={args.cells}"]
     if args.baseline:
         cmd = [sys.executable, str(Path(__file__).with_name("relay_node.py")), *cmd[1:4]]
     node_proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    rclpy.init()
     io = rclpy.create_node("bench_io", namespace=ns)
     pub = io.create_publisher(BatteryState, "battery/state", RELIABLE)
     received: dict[int, int] = {}
@@ -117,7 +157,7 @@ def main() -> int:
             if time.monotonic() > end or node_proc.poll() is not None:
                 err = node_proc.stderr.read().decode() if node_proc.poll() is not None else ""
                 print(f"node_latency: the node did not come up\n{err}")
-                return 1
+                return None
         period_ns = int(1e9 / args.rate_hz)
         n = int(args.seconds * args.rate_hz)
         sent: dict[int, int] = {}  # stamp -> monotonic publish time
@@ -131,7 +171,13 @@ def main() -> int:
                 ticks0, ticks_t0 = cpu_ticks(node_proc.pid), time.monotonic()
             stamp = time.time_ns()
             current = 3.0 if (k // 200) % 2 else 12.0  # 2-s load steps
-            pub.publish(state_message(stamp, 12.6 - 0.02 * current, current, 25.0))
+            if args.cells:  # at rest: every cell updated once the rest has lasted 60 s
+                current = 0.3
+            msg = state_message(stamp, 12.6 - 0.02 * current, current, 25.0)
+            if n_cells:  # cells a few mV apart, as a real pack's
+                cell_v = (12.6 - 0.02 * current) / n_cells
+                msg.cell_voltage = [cell_v + 0.002 * (j - n_cells / 2) for j in range(n_cells)]
+            pub.publish(msg)
             sent[stamp] = time.monotonic_ns()
             t_next += period_ns
         window_s = time.monotonic() - (ticks_t0 or time.monotonic())
@@ -149,7 +195,6 @@ def main() -> int:
             node_proc.kill()
         executor.shutdown()
         io.destroy_node()
-        rclpy.try_shutdown()
         Path(f"/tmp/soc_bench_{os.getpid()}.yaml").unlink(missing_ok=True)
 
     stamps = sorted(sent)
@@ -160,6 +205,8 @@ def main() -> int:
     hz = os.sysconf("SC_CLK_TCK")
     cpu_pct = 100.0 * (ticks1 - (ticks0 or ticks1)) / hz / window_s if window_s > 0 else 0.0
     what = "relay_node.py (baseline)" if args.baseline else f"soc_estimator_node, {args.estimator}"
+    if args.cells:
+        what += f", {n_cells} cell voltages" if n_cells else ", no cell voltages"
     print(
         f"{what}, {args.rate_hz:g} Hz input for "
         f"{args.seconds:g} s ({len(steady)} samples after a {args.warmup_s:g}-s warm-up)"
@@ -175,7 +222,7 @@ def main() -> int:
         print(f"outputs: {len(received)} for {len(stamps)} inputs ({rate})")
     print(f"node CPU: {cpu_pct:.1f} % of one core")
     print(f"node peak RSS: {rss:.1f} MiB")
-    return 0
+    return cpu_pct
 
 
 if __name__ == "__main__":

@@ -19,6 +19,9 @@ key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
   file's ``health.soh_warn`` / ``health.soh_dead`` (seed 001's end of life, 0.6), read on the
   applied SOH (``HealthMonitor.applied_soh``: the learned capacity once it differs from the
   file's by its ``APPLY_SIGMA`` std, the value the estimator and ``BatteryState`` use);
+* with cell voltages (``cells/``): WARN / ERROR for the cell imbalance (max - min cell SoC)
+  and the cell voltage spread beyond the battery file's ``cells:`` thresholds, ERROR for a
+  cell over or under its voltage limits, WARN for cell readings rejected since the last report;
 * WARN: the hybrid's guard (``estimators/guard.py``) weighs its voltage model below
   :data:`MODEL_WEIGHT_WARN`: the filter and the charge count disagree beyond the count's error
   budget, and the published SoC follows the count.
@@ -154,6 +157,8 @@ class Diagnostics:
                     "follows the charge count",
                 )
             )
+        cell_problems, cell_values = self._cells()
+        problems += cell_problems
         health = tr.health
         if health is not None:
             soh, hs = health.applied_soh, tr.battery.health
@@ -228,5 +233,58 @@ class Diagnostics:
                 ("health_pairs_rejected", health.pairs_rejected),
                 ("health_serial_number", health.serial_number or "none"),
             ]
+        values += cell_values
         values += extra or []
         return Report(level, message, [(k, _text(v)) for k, v in values])
+
+    def _cells(self) -> tuple[list[tuple[Level, str]], list[tuple[str, Any]]]:
+        """The cells' problems and values (``cells/``), none before a sample with cells:
+        imbalance (max - min cell SoC) and voltage spread against the file's ``cells:``
+        WARN / ERROR thresholds, ERROR for a cell over or under its voltage limits, WARN for
+        cell readings rejected since the last report."""
+        tr = self.tracker
+        bank, ce = tr.cells, tr.last_cells
+        problems: list[tuple[Level, str]] = []
+        if bank is None:
+            return problems, []
+        cs = tr.battery.cells
+        rejected = int(bank.rejected.sum())
+        new = self._new_since_last("cells_rejected", rejected)
+        if new > 0:
+            problems.append((Level.WARN, f"{new} cell readings rejected recently"))
+        values: list[tuple[str, Any]] = [
+            ("cells", bank.cells),
+            ("cells_miscounted", tr.cells_miscounted),
+            *((f"cell_rejected_{k + 1}", int(n)) for k, n in enumerate(bank.rejected)),
+            ("cell_voltage_min_v", bank.v_min),
+            ("cell_voltage_max_v", bank.v_max),
+        ]
+        if ce is None:
+            return problems, values
+        for what, value, warn, err, unit in (
+            ("cell imbalance", ce.imbalance_soc, cs.imbalance_soc_warn, cs.imbalance_soc_error, ""),
+            ("cell voltage spread", ce.spread_v, cs.spread_v_warn, cs.spread_v_error, " V"),
+        ):
+            if value >= err:
+                problems.append((Level.ERROR, f"{what} {value:.3f}{unit} >= {err:g}{unit}"))
+            elif value >= warn:
+                problems.append((Level.WARN, f"{what} {value:.3f}{unit} >= {warn:g}{unit}"))
+        for k in range(ce.cells):
+            v = ce.voltage_v[k]
+            if ce.over_voltage[k]:
+                problems.append((Level.ERROR, f"cell {k + 1} overvoltage {v:.3f} V"))
+            elif ce.under_voltage[k]:
+                problems.append((Level.ERROR, f"cell {k + 1} undervoltage {v:.3f} V"))
+        values += [
+            ("usable_soc", ce.usable_soc),
+            ("usable_soc_std", ce.usable_soc_std),
+            ("usable_charge_soc", ce.usable_charge_soc),
+            ("weakest_cell", ce.weakest + 1),
+            ("strongest_cell", ce.strongest + 1),
+            ("imbalance_soc", ce.imbalance_soc),
+            ("cell_spread_v", ce.spread_v),
+            *((f"cell_soc_{k + 1}", float(ce.soc[k])) for k in range(ce.cells)),
+            *((f"cell_soc_std_{k + 1}", float(ce.soc_std[k])) for k in range(ce.cells)),
+            *((f"cell_voltage_{k + 1}_v", float(ce.voltage_v[k])) for k in range(ce.cells)),
+        ]
+        return problems, values

@@ -84,7 +84,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
         "cells_in_series",
         0,
         "cells in series of this pack: the battery file is scaled to it (docs/battery_files.md"
-        "); 0 = the file's",
+        "); 0 = the file's. BatteryState.cell_voltage with this many values runs the per-cell "
+        "SoC (docs/cells.md)",
         int_range=(0, 1000),
     ),
     ParamSpec(

@@ -9,6 +9,7 @@ from dataclasses import asdict
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
 
+from ..cells import CellEstimate
 from ..estimators.base import Estimate
 from ..messages import (
     RUNTIME_FIELDS,
@@ -40,17 +41,21 @@ def battery_state_msg(fields: BatteryStateFields, header: Header | None = None) 
 
 
 def estimate_msg(
-    stamp_s: float, est: Estimate, health: Mapping[str, float] | None = None
+    stamp_s: float,
+    est: Estimate,
+    health: Mapping[str, float] | None = None,
+    cells: CellEstimate | None = None,
 ) -> Float64MultiArray:
     """The labelled estimate vector (``messages.py``) as a ``Float64MultiArray``, with the
-    learned ``health`` (``HealthMonitor.fields()``) when given."""
+    learned ``health`` (``HealthMonitor.fields()``) and the ``cells`` when given."""
     with_health = health is not None
-    n = len(estimate_labels(est.state_names, with_health))
+    n_cells = 0 if cells is None else cells.cells
+    n = len(estimate_labels(est.state_names, with_health, n_cells))
     arr = Float64MultiArray()
-    label = layout_label(est.state_names, with_health)
+    label = layout_label(est.state_names, with_health, n_cells)
     arr.layout.dim = [MultiArrayDimension(label=label, size=n, stride=n)]
     arr.layout.data_offset = 0
-    arr.data = estimate_vector(stamp_s, est, health)
+    arr.data = estimate_vector(stamp_s, est, health, cells)
     return arr
 
 

@@ -283,6 +283,7 @@ class SocEstimatorNode(Node):
             float(msg.voltage),
             float(msg.temperature),
             bool(msg.present),
+            tuple(float(v) for v in msg.cell_voltage),
         )
         self.process_sample(sample, msg.header, msg.location, msg.serial_number)
 
@@ -367,7 +368,7 @@ class SocEstimatorNode(Node):
         capacity_ah, soh = self._learned_health()
         fields = estimate_state(
             self.battery,
-            est.soc,
+            self.tracker.usable_soc,
             last.stamp_ns,
             last.voltage_v,
             last.current_a,
@@ -383,7 +384,12 @@ class SocEstimatorNode(Node):
         self._soc_pub.publish(battery_state_msg(fields, self._last_header))
         health = self.tracker.health
         self._est_pub.publish(
-            estimate_msg(last.stamp_ns / NS_PER_S, est, None if health is None else health.fields())
+            estimate_msg(
+                last.stamp_ns / NS_PER_S,
+                est,
+                None if health is None else health.fields(),
+                self.tracker.last_cells,
+            )
         )
         if self._pending_runtime is not None:
             self._runtime_pub.publish(runtime_msg(self._pending_runtime))
@@ -418,9 +424,10 @@ class SocEstimatorNode(Node):
             header.stamp = self.get_clock().now().to_msg()
             header.frame_id = self._last_header.frame_id if self._last_header else "battery"
             capacity_ah, soh = self._learned_health()
+            cells = self.tracker.last_cells
             fields = estimate_state(
                 self.battery,
-                self.tracker.soc,
+                self.tracker.soc if cells is None else cells.usable_soc,
                 0,
                 last.voltage_v,
                 last.current_a,

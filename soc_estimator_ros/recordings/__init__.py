@@ -13,6 +13,7 @@ from pathlib import Path
 from ..series import BatterySeries
 from ..units import CurrentSign
 from .bags import (
+    CELL_REFERENCE_TOPIC,
     REFERENCE_TOPIC,
     STATE_TOPIC,
     RecordingError,
@@ -50,6 +51,7 @@ def add_recording_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 __all__ = [
+    "CELL_REFERENCE_TOPIC",
     "REFERENCE_TOPIC",
     "STATE_TOPIC",
     "BatterySeries",

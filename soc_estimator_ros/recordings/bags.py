@@ -29,6 +29,9 @@ from ..units import core_current_from_ros, ns_to_stamp, stamp_to_ns
 
 STATE_TOPIC = "/battery/state"
 REFERENCE_TOPIC = "/battery/soc_reference"
+#: The simulator's true SoC of every cell (``std_msgs/Float64MultiArray``, labelled
+#: ``fields:cell_soc_1,...``), written at the bag time of its ``/battery/state`` sample.
+CELL_REFERENCE_TOPIC = "/battery/cell_soc_reference"
 _MSG = TYPESTORE.types[BATTERY_STATE]
 _HEADER = TYPESTORE.types["std_msgs/msg/Header"]
 
@@ -73,15 +76,26 @@ def read_battery_bag(
             for topic in (state_topic, reference_topic):
                 if topic in topics and topics[topic] != BATTERY_STATE:
                     raise RecordingError(p, f"{topic} is {topics[topic]}, expected {BATTERY_STATE}")
-            wanted = [c for c in reader.connections if c.topic in (state_topic, reference_topic)]
+            cell_topic = CELL_REFERENCE_TOPIC if reference_topic is not None else None
+            wanted = [
+                c
+                for c in reader.connections
+                if c.topic in (state_topic, reference_topic, cell_topic)
+            ]
             states: list[tuple[int, float, float, float, float, int]] = []
+            cells: dict[int, np.ndarray] = {}
             serial_number = ""
             refs: dict[int, tuple[float, float]] = {}
-            for conn, _, raw in reader.messages(connections=wanted):
+            cell_refs: dict[int, np.ndarray] = {}
+            for conn, bag_ns, raw in reader.messages(connections=wanted):
                 msg: Any = reader.deserialize(raw, conn.msgtype)
-                if conn.topic == state_topic:
+                if conn.topic == cell_topic:
+                    cell_refs[int(bag_ns)] = np.asarray(msg.data, dtype=float)
+                elif conn.topic == state_topic:
                     if not states:
                         serial_number = str(msg.serial_number)
+                    if len(msg.cell_voltage):
+                        cells[_stamp_ns(msg)] = np.asarray(msg.cell_voltage, dtype=float)
                     states.append(
                         (
                             _stamp_ns(msg),
@@ -107,6 +121,8 @@ def read_battery_bag(
     if reference_topic is not None and refs:
         soc_ref = np.array([refs.get(int(s), (math.nan, math.nan))[0] for s in stamps])
         ref_capacity = next(iter(refs.values()))[1]
+    cell_voltage_v = _cell_rows(cells, stamps)
+    cell_soc_ref = _cell_rows(cell_refs, stamps) if cell_voltage_v is not None else None
     return BatterySeries(
         t_s=(stamps - stamps[0]) * 1e-9,
         stamp_ns=stamps,
@@ -118,17 +134,36 @@ def read_battery_bag(
         technology=states[0][5],
         reference_capacity_ah=ref_capacity,
         serial_number=serial_number,
+        cell_voltage_v=cell_voltage_v,
+        cell_soc_ref=cell_soc_ref,
     )
 
 
-def battery_state_message(fields: BatteryStateFields) -> Any:
-    """A rosbags ``sensor_msgs/BatteryState`` with ``fields`` (``messages`` holds the rules)."""
+def _cell_rows(by_stamp: dict[int, np.ndarray], stamps: np.ndarray) -> np.ndarray | None:
+    """Per-cell rows at ``stamps`` ((samples, cells); NaN where a sample has none), or None
+    when no sample has any. The number of cells is the first row's."""
+    if not by_stamp:
+        return None
+    n = len(next(iter(by_stamp.values())))
+    out = np.full((stamps.size, n), math.nan)
+    for k, s in enumerate(stamps):
+        row = by_stamp.get(int(s))
+        if row is not None and row.size == n:
+            out[k] = row
+    return out
+
+
+def battery_state_message(
+    fields: BatteryStateFields, cell_voltage_v: Sequence[float] | np.ndarray = ()
+) -> Any:
+    """A rosbags ``sensor_msgs/BatteryState`` with ``fields`` (``messages`` holds the rules)
+    and the cells' voltages (V, in series order; empty: not measured)."""
     values = asdict(fields)
     sec, nsec = ns_to_stamp(values.pop("stamp_ns"))
     frame_id = values.pop("frame_id")
     return _MSG(
         header=_HEADER(stamp=_TIME(sec=sec, nanosec=nsec), frame_id=frame_id),
-        cell_voltage=np.array([], dtype=np.float32),
+        cell_voltage=np.asarray(cell_voltage_v, dtype=np.float32),
         cell_temperature=np.array([], dtype=np.float32),
         **values,
     )

@@ -96,9 +96,10 @@ def state_message(
 def series_messages(
     series: BatterySeries, n: int | None = None, serial_number: str = ""
 ) -> list[BatteryState]:
-    """The first ``n`` samples of a recording as bridge messages."""
+    """The first ``n`` samples of a recording as bridge messages (with the cells' voltages
+    when the recording has them)."""
     count = len(series) if n is None else n
-    return [
+    msgs = [
         state_message(
             int(series.stamp_ns[k]),
             float(series.voltage_v[k]),
@@ -109,6 +110,10 @@ def series_messages(
         )
         for k in range(count)
     ]
+    if series.cell_voltage_v is not None:
+        for msg, row in zip(msgs, series.cell_voltage_v, strict=False):
+            msg.cell_voltage = [float(v) for v in row]
+    return msgs
 
 
 @dataclass

@@ -59,7 +59,8 @@ def write_output_bag(
 ) -> None:
     """The input and the estimates as a new bag (MCAP), on the node's topics and types.
 
-    ``/battery/state`` and ``/battery/soc_reference`` (when the input has one) as recorded;
+    ``/battery/state`` (with the cells' voltages when the input has them) and
+    ``/battery/soc_reference`` (when the input has one) as recorded;
     ``/battery/soc`` as the node publishes it (``messages.estimate_state``) and
     ``/battery/soc_estimate``; with several estimators, each one's topics under
     ``/<estimator>/``. Rows before an estimator's first accepted sample are not written.
@@ -70,7 +71,9 @@ def write_output_bag(
     n = len(series)
     stamps = [int(s) for s in series.stamp_ns]
 
-    def bridge(k: int, **extra: Any) -> Any:
+    cells = series.cell_voltage_v
+
+    def bridge(k: int, with_cells: bool = False, **extra: Any) -> Any:
         return battery_state_message(
             bridge_state(
                 stamps[k],
@@ -80,11 +83,12 @@ def write_output_bag(
                 design_capacity_ah=battery.nominal_capacity_ah,
                 technology=tech,
                 **extra,
-            )
+            ),
+            cells[k] if with_cells and cells is not None else (),
         )
 
     topics: list[tuple[str, str, Any]] = [
-        (STATE_TOPIC, BATTERY_STATE, ((stamps[k], bridge(k)) for k in range(n)))
+        (STATE_TOPIC, BATTERY_STATE, ((stamps[k], bridge(k, True)) for k in range(n)))
     ]
     if series.soc_ref is not None:
         ref = series.soc_ref
@@ -121,18 +125,25 @@ def write_output_bag(
                 yield stamps[k], battery_state_message(fields)
 
         def est_msgs(e: EstimateSeries = e, rows: list[int] = rows) -> Iterator[Any]:
-            label = layout_label(e.state_names)
+            cells = e.cell_fields
+            n_cells = 0 if e.cell_soc is None else e.cell_soc.shape[1]
+            label = layout_label(e.state_names, cells=n_cells)
+            # The vector's soc is the pack's own, as the node's (the usable one is /battery/soc).
+            soc = e.soc if e.soc_lumped is None else e.soc_lumped
+            std = e.soc_std if e.soc_lumped_std is None else e.soc_lumped_std
             for k in rows:
                 row = estimate_row(
                     stamps[k] * 1e-9,
-                    float(e.soc[k]),
-                    float(e.soc_std[k]) ** 2,
+                    float(soc[k]),
+                    float(std[k]) ** 2,
                     float(e.voltage_pred_v[k]),
                     float(e.innovation_v[k]),
                     float(e.nis[k]),
                     e.x[k],
                     e.p[k],
                 )
+                if cells is not None:
+                    row += [float(v) for v in cells[k]]
                 yield stamps[k], float64_array_message(label, row)
 
         topics.append((f"{prefix}/battery/soc", BATTERY_STATE, soc_msgs()))
@@ -194,18 +205,30 @@ def _plot_time_to_empty(ax: Any, series: BatterySeries, results: list[ReplayResu
     ax.legend(fontsize=8, ncol=3)
 
 
+def cell_csv_columns(cells: int) -> list[str]:
+    """The columns ``--output`` adds with cell voltages: the pack's lumped SoC, then every
+    cell's SoC (0..1); ``soc`` and ``soc_std`` are then the usable discharge SoC's."""
+    return ["soc_lumped", *(f"cell_soc_{k + 1}" for k in range(cells))]
+
+
 def write_csv(path: Path, result: ReplayResult) -> None:
     """:data:`CSV_COLUMNS` per sample: the estimate, then the runtime monitor's latest
     prediction (NaN before the first, or when the replay made none; ``inf``: never), then the
-    learned health (NaN without ``--learn-health``)."""
+    learned health (NaN without ``--learn-health``); with cell voltages
+    :func:`cell_csv_columns` after them."""
     e = result.estimates
     n = len(e.t_s)
     rt = result.runtime
     columns = (*CSV_RUNTIME_COLUMNS, *HEALTH_COLUMNS)
     runtime = [rt[c] if rt is not None else np.full(n, math.nan) for c in columns]
+    cells: list[np.ndarray] = []
+    header = list(CSV_COLUMNS)
+    if e.cell_soc is not None and e.soc_lumped is not None:
+        cells = [e.soc_lumped, *(e.cell_soc[:, k] for k in range(e.cell_soc.shape[1]))]
+        header += cell_csv_columns(e.cell_soc.shape[1])
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(CSV_COLUMNS)
+        w.writerow(header)
         for row in zip(
             e.t_s,
             e.soc,
@@ -214,6 +237,7 @@ def write_csv(path: Path, result: ReplayResult) -> None:
             e.voltage_pred_v,
             e.current_a,
             *runtime,
+            *cells,
             strict=True,
         ):
             w.writerow([f"{v:.6g}" if k else f"{v:.3f}" for k, v in enumerate(row)])
@@ -266,6 +290,10 @@ def plot_results(path: Path, series: BatterySeries, results: list[ReplayResult])
     for k, r in enumerate(results):
         e = r.estimates
         (line,) = axes[0].plot(t_h, 100 * e.soc, lw=1, label=e.estimator)
+        if e.cell_soc is not None:  # the cells, thin, in the estimator's colour
+            axes[0].plot(t_h, 100 * e.cell_soc, lw=0.4, color=line.get_color(), alpha=0.6)
+            if series.cell_soc_ref is not None and k == 0:
+                axes[0].plot(t_h, 100 * series.cell_soc_ref, "k:", lw=0.5)
         axes[0].fill_between(
             t_h,
             100 * (e.soc - 2 * e.soc_std),

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cells import cell_field_names
 from ..errors import SocEstimatorError
 from ..estimators import ESTIMATORS
 from ..evaluation import Accuracy, accuracy
@@ -177,15 +178,25 @@ def track_series_runtime(
     pack = tracker.pack_serial(series.serial_number)
     every = max(1, n // 50)
     last = None
+    cell_v = series.cell_voltage_v
+    n_cells = 0 if cell_v is None else cell_v.shape[1]
+    cell_soc = np.full((n, n_cells), math.nan)
+    cell_std = np.full((n, n_cells), math.nan)
+    cell_fields = np.full((n, len(cell_field_names(n_cells)) if n_cells else 0), math.nan)
+    lumped = np.full(n, math.nan)
+    lumped_std = np.full(n, math.nan)
+    cells = None
     for k in range(n):
         sample = Sample(
             int(series.stamp_ns[k]),
             float(series.current_a[k]),
             float(series.voltage_v[k]),
             float(series.temperature_c[k]),
+            cell_voltage_v=() if cell_v is None else tuple(float(v) for v in cell_v[k]),
         )
         result = tracker.process(sample)
         if result.estimate is not None:
+            cells = result.cells
             last = result.estimate
             status.append(last.status.value)
             v_pred[k], innov[k], nis[k] = last.voltage_pred_v, last.innovation_v, last.nis
@@ -196,6 +207,11 @@ def track_series_runtime(
         if last is not None:
             soc[k], std[k] = last.soc, last.soc_std
             x[k], p[k] = last.x, last.p
+        if cells is not None and last is not None:  # the usable SoC is the published one
+            lumped[k], lumped_std[k] = soc[k], std[k]
+            soc[k], std[k] = cells.usable_soc, cells.usable_soc_std
+            cell_soc[k], cell_std[k] = cells.soc, cells.soc_std
+            cell_fields[k] = list(cells.fields().values())
         if result.runtime is not None:
             report = result.runtime.fields()
         if report is not None:
@@ -223,6 +239,11 @@ def track_series_runtime(
         x=x,
         p=p,
         state_names=tracker.estimator.state_names,
+        cell_soc=cell_soc if n_cells else None,
+        cell_soc_std=cell_std if n_cells else None,
+        cell_fields=cell_fields if n_cells else None,
+        soc_lumped=lumped if n_cells else None,
+        soc_lumped_std=lumped_std if n_cells else None,
     )
     runtime = RuntimeSeries(rt, full, tracker.battery.limits.soc_min)
     start = start or "no sample accepted"

@@ -50,6 +50,7 @@ from enum import Enum
 
 import numpy as np
 
+from ..cells import CellBank, CellEstimate
 from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
 from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
 from ..health import HealthMonitor, HealthState
@@ -94,6 +95,8 @@ class Sample:
         voltage_v: pack voltage (V).
         temperature_c: temperature (degC; NaN if not measured).
         present: the source says a battery is present.
+        cell_voltage_v: the cells' voltages (V, series order; ``BatteryState.cell_voltage``),
+            empty when the source sends none.
     """
 
     stamp_ns: int
@@ -101,6 +104,7 @@ class Sample:
     voltage_v: float
     temperature_c: float = math.nan
     present: bool = True
+    cell_voltage_v: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -112,6 +116,7 @@ class StepResult:
     estimate: Estimate | None = None
     events: tuple[Event, ...] = ()
     runtime: RuntimeReport | None = None
+    cells: CellEstimate | None = None
 
     @property
     def accepted(self) -> bool:
@@ -205,6 +210,13 @@ class Tracker:
             HealthMonitor(battery, health) if self.config.health else None
         )
         self._apply_health()
+        #: The cells' filters (``cells/``), made on the first sample with a voltage for every
+        #: one of the file's ``cells_in_series`` cells; None before (and for a pack without).
+        self.cells: CellBank | None = None
+        #: Samples whose ``cell_voltage`` held another number of cells (not estimated).
+        self.cells_miscounted = 0
+        #: The cells after the last accepted sample (None when it carried no cell voltages).
+        self.last_cells: CellEstimate | None = None
 
     # -- the estimation step ------------------------------------------------------------------
     def process(
@@ -273,11 +285,26 @@ class Tracker:
             self._recalibrate,
         )
         events += [Event(Level(n.severity), n.message) for n in notices]
+        cells = self._step_cells(t_s, s, est) if s.cell_voltage_v else None
+        self.last_cells = cells
         self.last_estimate = est
-        self.last_sample = Sample(s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present)
+        self.last_sample = Sample(
+            s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present, s.cell_voltage_v
+        )
         self.last_accept_steady_s = self._steady()
         self.revision += 1
-        return StepResult(verdict, est, tuple(events), report)
+        return StepResult(verdict, est, tuple(events), report, cells)
+
+    def _step_cells(self, t_s: float, s: Sample, est: Estimate) -> CellEstimate | None:
+        """The cells on an accepted sample, about the pack's estimate of it (``cells/``)."""
+        n = self.battery.cells_in_series
+        if len(s.cell_voltage_v) != n or n < 2:
+            self.cells_miscounted += 1
+            return None
+        if self.cells is None:
+            self.cells = CellBank(self.battery, n)
+        v = np.asarray(s.cell_voltage_v, dtype=float)
+        return self.cells.step(t_s, s.current_a, v, est.soc, est.soc_var)
 
     def _recalibrate(self, soc: float, soc_std: float) -> Estimate:
         """Reset the SoC (the runtime monitor's FULL) and return the estimate it leaves."""
@@ -452,7 +479,10 @@ class Tracker:
             self.revision += 1
 
     def new_pack(self, serial_number: str = "") -> None:
-        """Another pack (a new serial number, the reset service): health from the file again."""
+        """Another pack (a new serial number, the reset service): health from the file again,
+        and the cells' priors."""
+        if self.cells is not None:
+            self.cells.reset()
         if self.health is None:
             return
         self.health.reset(serial_number)
@@ -504,6 +534,16 @@ class Tracker:
     def soc_var(self) -> float:
         """The SoC variance now, at most ``MAX_SOC_VAR`` (what a state file may hold)."""
         return min(self.estimator.soc_var, MAX_SOC_VAR)
+
+    @property
+    def usable_soc(self) -> float:
+        """The SoC ``BatteryState.percentage`` publishes: the cells' usable discharge SoC when
+        the last accepted sample carried every cell's voltage, else the pack's last estimate."""
+        if self.last_cells is not None:
+            return self.last_cells.usable_soc
+        if self.last_estimate is not None:
+            return self.last_estimate.soc
+        return self.soc
 
     def saved_state(self) -> SavedState | None:
         """What a state file keeps now (``persistence.py``), the learned health with it; None

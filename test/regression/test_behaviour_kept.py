@@ -33,7 +33,9 @@ STEP = 10
 BAGS = sorted(
     p.parent.name
     for p in (REPO_ROOT / "bags").glob("*/metadata.yaml")
-    if "_validation_" not in p.parent.name and "_aged" not in p.parent.name
+    if "_validation_" not in p.parent.name
+    and "_aged" not in p.parent.name
+    and "_cells_" not in p.parent.name
 )
 
 

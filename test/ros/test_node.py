@@ -56,6 +56,7 @@ from soc_estimator_ros.replay.live import (  # noqa: E402
     start_node,
     state_message,
 )
+from soc_estimator_ros.replay.run import replay_estimator  # noqa: E402
 from soc_estimator_ros.tracking import GateConfig, Sample, Tracker, TrackerConfig  # noqa: E402
 from soc_estimator_ros.tracking.gate import Verdict  # noqa: E402
 from soc_estimator_ros.tracking.persistence import SavedState, load_state, save_state  # noqa: E402
@@ -895,3 +896,29 @@ def test_launch_file_builds_a_launch_description():
     assert isinstance(ld, LaunchDescription)
     names = {e.name for e in ld.entities if isinstance(e, DeclareLaunchArgument)}
     assert names == {"battery", "namespace", "params_file"}
+
+
+# -- cells (issue 25) --------------------------------------------------------------------------
+def test_cell_voltages_publish_the_usable_soc_and_the_cells(make_harness):
+    """A 4S pack's bridge with cell voltages: ``percentage`` is the usable SoC, equal to the
+    offline replay's sample for sample, and the estimate vector carries the cells."""
+    path = REPO_ROOT / "bags" / "lfp4s_cells_2_partial"
+    if not (path / "metadata.yaml").is_file():
+        pytest.skip(f"bundled bag {path.name} not present")
+    lfp = REPO_ROOT / "config" / "lfp_12v6ah.yaml"
+    n = 1500
+    run = read_battery_bag(path).window(0, n)
+    h = make_harness(battery_file=str(lfp), estimator="hybrid", initial_soc="ocv")
+    h.send(series_msgs(run, n))
+    h.spin_for(0.1)
+    assert len(h.soc) == n and len(h.est) == n
+    offline = replay_estimator(run, load_battery_params(lfp), "hybrid", "ocv", "cells")
+    live = np.array([m.percentage for m in h.soc])
+    assert np.max(np.abs(live - offline.estimates.soc)) < 1e-6  # percentage is float32
+    decoded = [decode_estimate(m) for m in h.est]
+    usable = np.array([d["cell.usable_soc"] for d in decoded])
+    np.testing.assert_allclose(usable, offline.estimates.soc, rtol=0, atol=1e-12)
+    lumped = np.array([d["soc"] for d in decoded])
+    assert offline.estimates.soc_lumped is not None
+    np.testing.assert_allclose(lumped, offline.estimates.soc_lumped, rtol=0, atol=1e-12)
+    assert all(f"cell.soc_{k}" in decoded[-1] for k in range(1, 5))

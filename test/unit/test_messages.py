@@ -16,6 +16,7 @@ from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.recordings import battery_state_message
 
 SLA = load_battery_params(REPO_ROOT / "config" / "sla_12v5ah.yaml")
+LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
 
 
 @pytest.mark.parametrize(
@@ -95,3 +96,34 @@ def test_estimate_vector_round_trip() -> None:
     decoded = m.decode_estimate(Msg)
     assert decoded["stamp_s"] == 12.0 and decoded["soc"] == est.soc
     assert decoded["soc_std"] == pytest.approx(math.sqrt(est.soc_var))
+
+
+def test_estimate_labels_and_vector_with_cells() -> None:
+    """The ``cell.*`` labels follow the health's, in the order of ``CellEstimate.fields``;
+    ``soc`` stays the pack's lumped estimate (docs/cells.md)."""
+    from soc_estimator_ros.cells import CellBank
+
+    est = make_estimator("hybrid", LFP, 0.6, 0.1).step(0.0, 1.0, 13.1, 25.0)
+    bank = CellBank(LFP, 4)
+    cells = bank.step(0.0, 1.0, np.array([3.27, 3.28, 3.27, 3.29]), est.soc, est.soc_var)
+    labels = m.estimate_labels(est.state_names, health=False, cells=4)
+    plain = m.estimate_labels(est.state_names)
+    assert labels[: len(plain)] == plain
+    assert labels[len(plain) :] == [
+        *(f"cell.soc_{k}" for k in range(1, 5)),
+        *(f"cell.soc_std_{k}" for k in range(1, 5)),
+        "cell.usable_soc",
+        "cell.usable_soc_std",
+        "cell.usable_charge_soc",
+        "cell.weakest",
+        "cell.imbalance_soc",
+        "cell.spread_v",
+    ]
+    data = m.estimate_vector(3.0, est, None, cells)
+    assert len(data) == len(labels)
+    named = dict(zip(labels, data, strict=True))
+    assert named["soc"] == est.soc
+    assert named["cell.usable_soc"] == cells.usable_soc
+    assert [named[f"cell.soc_{k}"] for k in range(1, 5)] == list(cells.soc)
+    # Without cells the vector is the one it always was.
+    assert m.estimate_vector(3.0, est) == data[: len(plain)]

@@ -225,3 +225,29 @@ def test_levels_and_charge_sections_are_optional_validated_and_round_trip() -> N
     dumped = battery_params_to_dict(params)
     assert dumped["levels"] == tree["levels"] and dumped["charge"] == tree["charge"]
     assert parse_battery_params(dumped) == params
+
+
+def test_cells_section_is_optional_validated_and_round_trips() -> None:
+    from soc_estimator_ros.params import CellSettings
+
+    tree = base()
+    params = parse_battery_params(tree)
+    assert params.cells == CellSettings()
+    assert "cells" not in battery_params_to_dict(params)  # defaults are not written
+    for change, named in (
+        ({"imbalance": 0.1}, "cells.imbalance"),  # unknown key
+        ({"imbalance_soc_warn": 0.2, "imbalance_soc_error": 0.1}, "cells.imbalance_soc_error"),
+        ({"spread_v_warn": 0.3}, "cells.spread_v_error"),  # warn above the default error
+        ({"cell_voltage_min_v": 3.0, "cell_voltage_max_v": 2.5}, "cells.cell_voltage_max_v"),
+        ({"soc_spread_std": 0.0}, "cells.soc_spread_std"),
+    ):
+        bad = copy.deepcopy(tree)
+        bad["cells"] = change
+        with pytest.raises(ParamFileError, match=named):
+            parse_battery_params(bad)
+    tree["cells"] = {"imbalance_soc_warn": 0.04, "cell_voltage_max_v": 3.65}
+    params = parse_battery_params(tree)
+    assert params.cells == CellSettings(imbalance_soc_warn=0.04, cell_voltage_max_v=3.65)
+    dumped = battery_params_to_dict(params)
+    assert dumped["cells"] == tree["cells"]
+    assert parse_battery_params(dumped) == params

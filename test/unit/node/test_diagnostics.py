@@ -41,3 +41,43 @@ def test_no_warning_where_the_model_is_trusted() -> None:
     rep = report_after(25.0)  # inside the identified range: the count follows the UKF
     assert "weighed out" not in rep.message, rep.message
     assert float(dict(rep.values)["model_weight"]) >= 0.5
+
+
+LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+
+
+def cells_report(cell_v: tuple[float, ...], bad_samples: int = 0):
+    """Ten samples of a 4S LFP pack at rest with these cell voltages, ``bad_samples`` of them
+    with cell 2 unreadable (NaN)."""
+    tr = Tracker(LFP, GateConfig.from_limits(LFP.limits), TrackerConfig(initial_soc=0.6))
+    diag = Diagnostics(tr, "lfp.yaml", 0.0)
+    for k in range(10):
+        v = list(cell_v)
+        if k < bad_samples:
+            v[1] = float("nan")
+        tr.process(Sample(k * S, 0.3, sum(cell_v), 25.0, cell_voltage_v=tuple(v)))
+    return diag.report(10.0, stale_timeout_s=1e9)
+
+
+def test_no_cell_values_without_cell_voltages() -> None:
+    rep = report_after(25.0)
+    assert not any(k.startswith("cell") for k, _ in rep.values)
+
+
+def test_cell_values_and_a_rejected_reading() -> None:
+    rep = cells_report((3.27, 3.27, 3.27, 3.27), bad_samples=2)
+    values = dict(rep.values)
+    assert values["cells"] == "4" and values["cell_rejected_2"] == "2"
+    assert values["cell_rejected_1"] == "0" and "weakest_cell" in values
+    assert rep.level is Level.WARN and "2 cell readings rejected recently" in rep.message
+
+
+def test_cell_spread_and_limits() -> None:
+    # 0.15 V apart: above the default 0.10 V warn, below the 0.20 V error.
+    rep = cells_report((3.27, 3.27, 3.27, 3.42))
+    assert rep.level is Level.WARN and "cell voltage spread 0.150 V >= 0.1 V" in rep.message
+    # A cell above 3.65 V (14.6 V / 4): over-voltage, an error.
+    rep = cells_report((3.27, 3.27, 3.27, 3.70))
+    assert rep.level is Level.ERROR and "cell 4 overvoltage 3.700 V" in rep.message
+    rep = cells_report((3.27, 2.40, 3.27, 3.27))
+    assert rep.level is Level.ERROR and "cell 2 undervoltage 2.400 V" in rep.message

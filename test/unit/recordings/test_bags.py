@@ -19,6 +19,7 @@ from rosbags.rosbag2.storage_mcap import McapReader
 
 from soc_estimator_ros.messages import TECHNOLOGY_BY_CHEMISTRY, TYPESTORE, bridge_state
 from soc_estimator_ros.recordings import (
+    CELL_REFERENCE_TOPIC,
     REFERENCE_TOPIC,
     STATE_TOPIC,
     RecordingError,
@@ -93,12 +94,28 @@ def test_bag_contract(bag: Path) -> None:
     with AnyReader([bag], default_typestore=TYPESTORE) as reader:
         topics = {c.topic: c.msgtype for c in reader.connections}
         counts = {c.topic: c.msgcount for c in reader.connections}
+    cells = m["kind"] == "cells_mission"
     assert topics == {
         STATE_TOPIC: "sensor_msgs/msg/BatteryState",
         REFERENCE_TOPIC: "sensor_msgs/msg/BatteryState",
+        **({CELL_REFERENCE_TOPIC: "std_msgs/msg/Float64MultiArray"} if cells else {}),
     }
     assert counts[STATE_TOPIC] == counts[REFERENCE_TOPIC] == m["samples"]
     s = series(bag)
+    if cells:  # every sample has every cell's voltage and reference SoC
+        n = len(m["cells"]["capacity_x"])
+        assert s.cell_voltage_v is not None and s.cell_soc_ref is not None
+        assert s.cell_voltage_v.shape == s.cell_soc_ref.shape == (len(s), n)
+        assert np.all(np.isfinite(s.cell_voltage_v)) and np.all(np.isfinite(s.cell_soc_ref))
+        # The pack is the cells in series (the pack sensor and the cell ADCs differ by their
+        # gain and offset errors: 0.8 % and 4 x 2 mV at most, bags/README.md).
+        assert np.allclose(s.cell_voltage_v.sum(axis=1), s.voltage_v, rtol=0.01, atol=0.01)
+        # The reference is the usable SoC: the weakest cell's charge over the pack's capacity.
+        caps = np.asarray(m["cells"]["capacity_ah"])
+        usable = np.min(s.cell_soc_ref * caps, axis=1) / m["reference_capacity_ah"]
+        assert np.allclose(usable, s.soc_ref, atol=1e-4)  # bag.yaml rounds to 1e-4 Ah
+    else:
+        assert s.cell_voltage_v is None and s.cell_soc_ref is None
     assert np.all(np.diff(s.stamp_ns) > 0)  # strictly monotone header stamps
     assert not np.any(np.isnan(s.soc_ref))  # every state sample has its reference
     # Duration and SoC range as documented (bag.yaml rounds to 0.1 s and 1e-4).

@@ -303,3 +303,67 @@ def test_cells_in_series_and_capacity_scale_the_file(tmp_path, capsys):
     assert [r["soc"] for r in rows_a] == [r["soc"] for r in rows_b]
     code, _, err = run([str(doubled), *base, "--cells-in-series", "-2"], capsys)
     assert code == 2 and "--cells-in-series" in err
+
+
+def test_csv_cell_columns_contract(tmp_path, capsys):
+    """With cell voltages --output adds ``soc_lumped`` and ``cell_soc_1`` ... ``cell_soc_N``
+    after :data:`CSV_COLUMNS`, and ``soc`` is the usable SoC (docs/replay.md); the first
+    2000 samples of a bundled 4S mission."""
+    from soc_estimator_ros.replay.outputs import CSV_COLUMNS, cell_csv_columns
+
+    assert cell_csv_columns(4) == [
+        "soc_lumped",
+        "cell_soc_1",
+        "cell_soc_2",
+        "cell_soc_3",
+        "cell_soc_4",
+    ]
+    doc = (REPO_ROOT / "docs" / "replay.md").read_text()
+    assert "`soc_lumped`" in doc and "`cell_soc_1`" in doc
+    bag = bag_path("lfp4s_cells_2_partial")
+    out = tmp_path / "est.csv"
+    lfp = REPO_ROOT / "config" / "lfp_12v6ah.yaml"
+    code, _, _ = run([str(bag), "--params", str(lfp), "--output", str(out)], capsys)
+    assert code == 0
+    with out.open() as fh:
+        reader = csv.DictReader(fh)
+        assert tuple(reader.fieldnames or ()) == (*CSV_COLUMNS, *cell_csv_columns(4))
+        rows = list(reader)
+    soc = np.array([float(r["soc"]) for r in rows])
+    cells = np.array([[float(r[f"cell_soc_{k}"]) for k in range(1, 5)] for r in rows])
+    lumped = np.array([float(r["soc_lumped"]) for r in rows])
+    assert np.all((cells >= -0.05) & (cells <= 1.05))  # fractions, not percent
+    # soc is the usable SoC: never above the fullest cell's, and apart from the lumped one.
+    assert np.all(soc <= cells.max(axis=1) + 0.05)
+    assert np.max(np.abs(soc - lumped)) > 0.005
+
+
+def test_output_bag_carries_the_cell_voltages(tmp_path, capsys):
+    """--output-bag with a 4S mission: /battery/state keeps cell_voltage, /battery/soc is the
+    usable SoC (the node's percentage), /battery/soc_estimate's soc the pack's own and its
+    ``cell.*`` values the cells' (cell.usable_soc the percentage)."""
+    bag = bag_path("lfp4s_cells_2_partial")
+    out = tmp_path / "out_bag"
+    est_csv = tmp_path / "est.csv"
+    lfp = REPO_ROOT / "config" / "lfp_12v6ah.yaml"
+    args = [str(bag), "--params", str(lfp), "--output", str(est_csv), "--output-bag", str(out)]
+    code, _, _ = run(args, capsys)
+    assert code == 0
+    cells, soc, est, usable = [], [], [], []
+    with AnyReader([out]) as reader:
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/battery/state":
+                cells.append(len(msg.cell_voltage))
+            elif conn.topic == "/battery/soc":
+                soc.append(msg.percentage)
+            elif conn.topic == "/battery/soc_estimate":
+                decoded = decode_estimate(msg)
+                est.append(decoded["soc"])
+                usable.append(decoded["cell.usable_soc"])
+    assert set(cells) == {4}
+    np.testing.assert_allclose(soc, usable, atol=1e-6)  # percentage is float32
+    with est_csv.open() as fh:
+        rows = list(csv.DictReader(fh))
+    np.testing.assert_allclose(soc, [float(r["soc"]) for r in rows], atol=1e-6)
+    np.testing.assert_allclose(est, [float(r["soc_lumped"]) for r in rows], atol=1e-5)

@@ -1,0 +1,61 @@
+"""The cell bank (cells/bank.py): the cell gate, usable SoC, weakest and strongest cells."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from conftest import REPO_ROOT
+
+from soc_estimator_ros.cells import CellBank, cell_field_names, cell_limits_v
+from soc_estimator_ros.params import load_battery_params
+
+LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+
+
+def test_cell_limits_default_to_the_pack_limits_per_cell() -> None:
+    lo, hi = cell_limits_v(LFP, 4)
+    assert (lo, hi) == (LFP.limits.voltage_min_v / 4, LFP.limits.voltage_max_v / 4)
+
+
+def test_one_bad_cell_is_rejected_alone_and_counted() -> None:
+    bank = CellBank(LFP, 4)
+    good = np.array([3.30, 3.31, 3.29, 3.30])
+    bad_values = [math.nan, math.inf, 99.0, -1.0]
+    for k in range(40):
+        v = good.copy()
+        if k % 4 == 0:
+            v[2] = bad_values[(k // 4) % len(bad_values)]
+        ce = bank.step(float(k), 0.3, v, 0.6, 1e-4)
+        assert ce.accepted[2] == (k % 4 != 0)
+        assert np.all(ce.accepted[[0, 1, 3]])
+        assert np.all(np.isfinite(ce.soc))
+    np.testing.assert_array_equal(bank.rejected, [0, 0, 10, 0])
+
+
+def test_usable_soc_is_the_weakest_cells_remaining_charge() -> None:
+    bank = CellBank(LFP, 4)
+    bank.step(0.0, 0.3, np.full(4, 3.3), 0.5, 1e-4)
+    f = bank.filter
+    f.x[:, 0] = [0.02, -0.04, 0.0, 0.03]
+    f.x[:, 1] = [0.0, 0.05, 0.0, -0.02]
+    ce = bank._estimate(np.full(4, 3.3), np.ones(4, dtype=bool), 0.5, 1e-4)
+    soc = 0.5 + f.x[:, 0]
+    remaining = soc * (1 + f.x[:, 1])
+    room = (1 - soc) * (1 + f.x[:, 1])
+    assert ce.weakest == int(np.argmin(remaining)) == 1
+    assert ce.strongest == int(np.argmin(room)) == 3
+    assert math.isclose(ce.usable_soc, remaining[1], rel_tol=1e-12)
+    assert math.isclose(ce.usable_charge_soc, 1 - room[3], rel_tol=1e-12)
+    assert math.isclose(ce.imbalance_soc, 0.07, rel_tol=1e-9)
+    assert math.isclose(ce.usable_soc_std, math.sqrt(1e-4 + f.p[1, 0, 0]), rel_tol=1e-12)
+    assert list(ce.fields()) == cell_field_names(4)
+    assert ce.fields()["weakest"] == 2.0  # 1-based in the vector
+
+
+def test_cell_over_and_under_voltage_flags() -> None:
+    bank = CellBank(LFP, 4)
+    ce = bank.step(0.0, 0.3, np.array([3.3, 3.7, 2.4, 3.3]), 0.5, 1e-4)
+    np.testing.assert_array_equal(ce.over_voltage, [False, True, False, False])
+    np.testing.assert_array_equal(ce.under_voltage, [False, False, True, False])
+    assert math.isclose(ce.spread_v, 3.7 - 2.4, rel_tol=1e-6)
