@@ -161,19 +161,25 @@ def _read_battery_bag_once(
     path: Path | str,
     state_topic: str = _bags.STATE_TOPIC,
     reference_topic: str | None = _bags.REFERENCE_TOPIC,
+    max_samples: int | None = None,
 ) -> _recordings.BatterySeries:
-    """``read_battery_bag``, its result kept per (bag files' names, sizes, mtimes; topics)."""
+    """``read_battery_bag``, its result kept per (bag files' names, sizes, mtimes; topics).
+    A head (``max_samples``) is cut from a kept whole bag if there is one, else read alone
+    (and not kept)."""
     cache = os.environ.get(_BAG_CACHE_ENV, "off")
     bag = Path(path)
     if cache == "off" or not bag.is_dir():
-        return _read_battery_bag(path, state_topic, reference_topic)
+        return _read_battery_bag(path, state_topic, reference_topic, max_samples)
     files = sorted((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in bag.iterdir())
     key = repr((str(bag.resolve()), state_topic, reference_topic, files))
     kept = Path(cache) / (hashlib.sha256(key.encode()).hexdigest() + ".pickle")
     try:
-        return pickle.loads(kept.read_bytes())
+        whole = pickle.loads(kept.read_bytes())
+        return whole if max_samples is None else whole.window(0, max_samples)
     except (FileNotFoundError, EOFError, pickle.UnpicklingError):
         pass
+    if max_samples is not None:
+        return _read_battery_bag(path, state_topic, reference_topic, max_samples)
     series = _read_battery_bag(path, state_topic, reference_topic)
     fd, tmp = tempfile.mkstemp(dir=cache, suffix=".tmp")
     with os.fdopen(fd, "wb") as fh:

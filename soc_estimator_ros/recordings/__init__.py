@@ -31,12 +31,17 @@ def read_recording(
     state_topic: str = STATE_TOPIC,
     sign: CurrentSign = CurrentSign.DISCHARGE_POSITIVE,
     reference_topic: str | None = REFERENCE_TOPIC,
+    max_samples: int | None = None,
 ) -> BatterySeries:
-    """A CSV file (current sign ``sign``) or a bag (topics as :func:`read_battery_bag`)."""
+    """A CSV file (current sign ``sign``) or a bag (topics and ``max_samples`` as
+    :func:`read_battery_bag`; a CSV is read whole, then cut)."""
     path = Path(path)
     if path.is_file() and path.suffix.lower() == ".csv":
-        return read_csv(path, sign)
-    return read_battery_bag(path, state_topic=state_topic, reference_topic=reference_topic)
+        series = read_csv(path, sign)
+        return series if max_samples is None else series.window(0, max_samples)
+    return read_battery_bag(
+        path, state_topic=state_topic, reference_topic=reference_topic, max_samples=max_samples
+    )
 
 
 def add_recording_arguments(parser: argparse.ArgumentParser) -> None:

@@ -58,11 +58,14 @@ def read_battery_bag(
     path: Path | str,
     state_topic: str = STATE_TOPIC,
     reference_topic: str | None = REFERENCE_TOPIC,
+    max_samples: int | None = None,
 ) -> BatterySeries:
     """Read a recording; :class:`RecordingError` for anything that makes it unusable.
 
     The reference topic is optional: without it ``soc_ref`` is None. Its samples are matched
     to the state samples by stamp; state samples without a reference get NaN.
+    ``max_samples``: read only the first that many state samples (in bag order; a preview, a
+    test on a recording's head) and the references up to them.
     """
     p = Path(path)
     if not p.exists():
@@ -106,6 +109,10 @@ def read_battery_bag(
                             int(msg.power_supply_technology),
                         )
                     )
+                    # One state past the limit: every reference of the kept ones was read
+                    # (a bag is in receive order; a sample's reference comes before the next).
+                    if max_samples is not None and len(states) > max_samples:
+                        break
                 else:
                     refs[_stamp_ns(msg)] = (float(msg.percentage), float(msg.capacity))
     except RecordingError:
@@ -115,6 +122,8 @@ def read_battery_bag(
     if not states:
         raise RecordingError(p, f"topic {state_topic} has no messages")
     states.sort(key=lambda s: s[0])
+    if max_samples is not None:
+        states = states[:max_samples]
     stamps = np.array([s[0] for s in states], dtype=np.int64)
     soc_ref = None
     ref_capacity = None

@@ -347,3 +347,20 @@ def test_wrong_message_type(tmp_path: Path) -> None:
     )
     with pytest.raises(RecordingError, match="BatteryState|cannot be read"):
         read_battery_bag(src)
+
+
+@pytest.mark.parametrize("name", ["sla_field_run_1_full_rest", "lfp4s_cells_2_partial"])
+def test_max_samples_reads_the_head_of_a_bag(name: str) -> None:
+    """The first n samples, with their references and cell voltages, as the whole bag's."""
+    bag = BAGS / name
+    if not (bag / "metadata.yaml").is_file():
+        pytest.skip(f"bundled bag {name} not present")
+    n = 1234
+    head = read_battery_bag(bag, max_samples=n)
+    whole = series(bag).window(0, n)
+    assert len(head) == n
+    for field in ("stamp_ns", "t_s", "current_a", "voltage_v", "temperature_c", "soc_ref"):
+        np.testing.assert_array_equal(getattr(head, field), getattr(whole, field), field)
+    if whole.cell_voltage_v is not None:
+        np.testing.assert_array_equal(head.cell_voltage_v, whole.cell_voltage_v)
+        np.testing.assert_array_equal(head.cell_soc_ref, whole.cell_soc_ref)

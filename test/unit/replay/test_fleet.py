@@ -65,8 +65,10 @@ def run(args: list[str], capsys) -> tuple[int, str, str]:
 
 
 def test_a_local_cluster_prints_what_the_process_pool_prints(fleet_dir, capsys):
-    code_pool, pool, _ = run([str(fleet_dir), "--jobs", "2"], capsys)
-    code_dask, dask, err = run([str(fleet_dir), "--jobs", "2", "--scheduler", "local"], capsys)
+    # coulomb: the cheapest estimator; what is compared is where the jobs run, not the filter
+    one = ["--estimator", "coulomb", "--jobs", "2"]
+    code_pool, pool, _ = run([str(fleet_dir), *one], capsys)
+    code_dask, dask, err = run([str(fleet_dir), *one, "--scheduler", "local"], capsys)
     assert code_pool == 0 and code_dask == 0, err
     assert "robot_a" in pool and "robot_b" in pool and "rejected: none" in pool
     assert pool.count(" - ") == 0  # every row has its errors: the reference was read
@@ -76,9 +78,10 @@ def test_a_local_cluster_prints_what_the_process_pool_prints(fleet_dir, capsys):
 def test_urls_replay_as_the_local_paths_do(fleet_dir, capsys):
     """A file:// URL of a directory of bags, and a memory:// copy of it (fetched by the job
     into a temporary directory), print the local directory's table."""
-    code, local, err = run([str(fleet_dir), "--jobs", "1"], capsys)
+    one = ["--estimator", "coulomb", "--jobs", "1"]
+    code, local, err = run([str(fleet_dir), *one], capsys)
     assert code == 0, err
-    code, from_file, err = run([fleet_dir.as_uri(), "--jobs", "1"], capsys)
+    code, from_file, err = run([fleet_dir.as_uri(), *one], capsys)
     assert code == 0, err
     assert from_file == local
     mem = fsspec.filesystem("memory")
@@ -88,7 +91,7 @@ def test_urls_replay_as_the_local_paths_do(fleet_dir, capsys):
             "memory:///soc_test_fleet/robot_a",
             "memory:///soc_test_fleet/robot_b",
         ]
-        code, from_memory, err = run(["memory:///soc_test_fleet", "--jobs", "1"], capsys)
+        code, from_memory, err = run(["memory:///soc_test_fleet", *one], capsys)
         assert code == 0, err
         assert from_memory == local
     finally:
