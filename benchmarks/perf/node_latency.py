@@ -12,6 +12,9 @@ subscribes to the node's ``battery/soc``. Prints, for the steady part (after ``-
 Targets (issue "Replay and evaluation"): <= 3 % of one core and p99 <= 2 ms at 100 Hz.
 ``--baseline`` runs ``relay_node.py`` (an rclpy node that only republishes each message) in
 the node's place: the floor that rclpy and the DDS put under any Python node here.
+``--versus-relay`` (issue 28, part 4) runs the relay and the node alternately, ``--rounds``
+times each, in one invocation, and prints the node/relay ratios of CPU and p99 latency and the
+messages each lost (targets: CPU <= 1.3, p99 <= 2, no loss the relay did not have).
 ``--cells N`` (issue 25) runs the node twice in one invocation on the same pack (the LFP file
 unless ``--battery``, its ``cells_in_series`` set to N): first without ``cell_voltage``, then
 with N cell voltages in every message, and prints both and the CPU ratio (target <= 1.5 at
@@ -22,22 +25,37 @@ Prints numbers and asserts nothing. DDS stays on loopback with a domain id of it
 
     python benchmarks/perf/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
     python benchmarks/perf/node_latency.py --baseline
+    python benchmarks/perf/node_latency.py --versus-relay --seconds 20 --rounds 2
     python benchmarks/perf/node_latency.py --cells 4 --seconds 100 --warmup-s 65
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout (its bags/ and config/)
+
+
+_RUN_IDS = itertools.count()
+
+
+@dataclass(frozen=True)
+class Run:
+    """One measured run: CPU (% of one core), p99 latency (ms), input messages lost."""
+
+    cpu_pct: float
+    p99_ms: float
+    lost: int
 
 
 def cpu_ticks(pid: int) -> int:
@@ -74,8 +92,20 @@ def main() -> int:
         help="the node's publish_rate_hz (0: one output per input sample)",
     )
     ap.add_argument(
+        "--filter-rate-hz",
+        type=float,
+        default=0.0,
+        help="the node's filter_rate_hz (0: a filter step on every input sample)",
+    )
+    ap.add_argument(
         "--baseline", action="store_true", help="run relay_node.py instead: rclpy's own floor"
     )
+    ap.add_argument(
+        "--versus-relay",
+        action="store_true",
+        help="run the relay and the node alternately; print the node/relay ratios",
+    )
+    ap.add_argument("--rounds", type=int, default=2, help="relay+node pairs with --versus-relay")
     args = ap.parse_args()
     if args.battery is None:
         name = "lfp_12v6ah.yaml" if args.cells else "sla_12v5ah.yaml"
@@ -89,6 +119,8 @@ def main() -> int:
 
     rclpy.init()
     try:
+        if args.versus_relay:
+            return versus_relay(args, env)
         if not args.cells:
             return 0 if measure(args, env, 0) is not None else 1
         pack = measure(args, env, 0)
@@ -96,17 +128,42 @@ def main() -> int:
         if pack is None or cells is None:
             return 1
         print(
-            f"CPU with {args.cells} cells / without: {cells / pack:.2f} "
-            f"({cells:.1f} % / {pack:.1f} % of one core)"
+            f"CPU with {args.cells} cells / without: {cells.cpu_pct / pack.cpu_pct:.2f} "
+            f"({cells.cpu_pct:.1f} % / {pack.cpu_pct:.1f} % of one core)"
         )
         return 0
     finally:
         rclpy.try_shutdown()
 
 
-def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> float | None:
-    """One run of the node; prints its numbers and returns its CPU (% of one core), None when
-    it did not come up. ``n_cells``: cell voltages per message (0: none, as a bridge without
+def versus_relay(args: argparse.Namespace, env: dict[str, str]) -> int:
+    """The relay and the node alternately (so a slow spell of the machine hits both), then the
+    ratios of the sums over the rounds."""
+    relay: list[Run] = []
+    node: list[Run] = []
+    for _ in range(args.rounds):
+        for baseline, runs in ((True, relay), (False, node)):
+            args.baseline = baseline
+            run = measure(args, env, 0)
+            if run is None:
+                return 1
+            runs.append(run)
+    cpu_node, cpu_relay = (sum(r.cpu_pct for r in runs) for runs in (node, relay))
+    p99_node, p99_relay = (sum(r.p99_ms for r in runs) for runs in (node, relay))
+    rate = f", filter_rate_hz {args.filter_rate_hz:g}" if args.filter_rate_hz > 0 else ""
+    print(f"node / relay over {args.rounds} rounds, {args.estimator}{rate}:")
+    print(f"  CPU {cpu_node / cpu_relay:.2f} (target <= 1.3)")
+    print(f"  p99 latency {p99_node / p99_relay:.2f} (target <= 2)")
+    print(
+        f"  lost: node {sum(r.lost for r in node)}, relay {sum(r.lost for r in relay)} "
+        "(target: none the relay did not lose)"
+    )
+    return 0
+
+
+def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> Run | None:
+    """One run of the node; prints its numbers and returns them, None when it did not come
+    up. ``n_cells``: cell voltages per message (0: none, as a bridge without
     a BMS sends)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -114,7 +171,7 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> floa
 
     from soc_estimator_ros.replay.live import RELIABLE, state_message
 
-    ns = f"/bench_{os.getpid()}"
+    ns = f"/bench_{os.getpid()}_{next(_RUN_IDS)}"  # a fresh namespace: no stale peer matches
     exe = Path(sys.executable).parent / "soc_estimator_node"
     cmd = [
         str(exe),
@@ -133,6 +190,8 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> floa
         f"state_file:=/tmp/soc_bench_{os.getpid()}.yaml",
         "-p",
         f"publish_rate_hz:={args.publish_rate_hz}",
+        "-p",
+        f"filter_rate_hz:={args.filter_rate_hz}",
     ]
     if args.cells:  # both runs on the same pack: the file at N cells
         cmd += ["-p", f"cells_in_series:={args.cells}"]
@@ -205,6 +264,8 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> floa
     hz = os.sysconf("SC_CLK_TCK")
     cpu_pct = 100.0 * (ticks1 - (ticks0 or ticks1)) / hz / window_s if window_s > 0 else 0.0
     what = "relay_node.py (baseline)" if args.baseline else f"soc_estimator_node, {args.estimator}"
+    if not args.baseline and args.filter_rate_hz > 0:
+        what += f", filter_rate_hz {args.filter_rate_hz:g}"
     if args.cells:
         what += f", {n_cells} cell voltages" if n_cells else ", no cell voltages"
     print(
@@ -222,7 +283,7 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> floa
         print(f"outputs: {len(received)} for {len(stamps)} inputs ({rate})")
     print(f"node CPU: {cpu_pct:.1f} % of one core")
     print(f"node peak RSS: {rss:.1f} MiB")
-    return cpu_pct
+    return Run(cpu_pct=cpu_pct, p99_ms=float(np.percentile(lat_ms, 99)), lost=lost)
 
 
 if __name__ == "__main__":

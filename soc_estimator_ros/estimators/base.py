@@ -218,8 +218,15 @@ class Estimator(ABC):
         current_a: float,
         voltage_v: float,
         temperature_c: float | None = None,
+        held_current_a: float | None = None,
     ) -> Estimate:
-        """Process one sample; see the module docstring for the time rules."""
+        """Process one sample; see the module docstring for the time rules.
+
+        ``held_current_a``: the current to hold over the interval since the last step instead
+        of the last step's (A); a caller that steps the filter on every n-th sample
+        (``tracking/decimation.py``) passes the counted charge over the interval's length, so
+        the SoC moves by exactly the charge every sample counted.
+        """
         if self.t_last_s is None:
             status = StepStatus.INITIALIZED
         else:
@@ -228,13 +235,18 @@ class Estimator(ABC):
                 return self._estimate(t_s, StepStatus.REJECTED_DT, math.nan, math.nan, math.nan)
             if dt > self.time_policy.max_step_s:
                 status = StepStatus.GAP
-                i_mean = 0.5 * (self.current_last_a + current_a)
+                i_mean = (
+                    0.5 * (self.current_last_a + current_a)
+                    if held_current_a is None
+                    else held_current_a
+                )
                 self._predict(dt, i_mean, current_a, temperature_c)
                 q = self.time_policy.gap_current_std_a * dt / (SECONDS_PER_HOUR * self.capacity_ah)
                 self._inflate_soc_variance(q * q)
             else:
                 status = StepStatus.OK
-                self._predict(dt, self.current_last_a, current_a, temperature_c)
+                held = self.current_last_a if held_current_a is None else held_current_a
+                self._predict(dt, held, current_a, temperature_c)
             self.p = condition_covariance(self.p)
         v_pred, innov, nis = self._update(current_a, voltage_v, temperature_c)
         self._clip_soc()

@@ -166,6 +166,14 @@ PARAMETERS: tuple[ParamSpec, ...] = (
         "output rate (Hz); 0 = publish on every accepted sample",
         float_range=(0.0, 1000.0),
     ),
+    ParamSpec(
+        "filter_rate_hz",
+        0.0,
+        "filter steps per second (Hz): the samples between two steps are counted as charge "
+        "and their voltages averaged, and still published; 0 = a step on every sample. "
+        "10 suits a 50-100 Hz bridge (docs/node.md)",
+        float_range=(0.0, 1000.0),
+    ),
     ParamSpec("location", "", "BatteryState.location; empty = copied from the input", False),
     ParamSpec(
         "serial_number", "", "BatteryState.serial_number; empty = copied from the input", False

@@ -135,10 +135,14 @@ class SocEstimatorNode(Node):
         self._log_times: dict[str, float] = {}
         self._published_seq = 0
         self._pending_publish = False
+        #: A filter step ran since the estimate vector was last published.
+        self._pending_estimate = False
         self._saved_revision = 0
         self._pending_switch: Estimator | None = None
         self._pending_runtime: RuntimeReport | None = None
         self._last_header: Header | None = None
+        self._soc_msg = BatteryState()  # filled anew for every output (battery_state_msg)
+        self._read_output_parameters()
         self._last_location = ""
         self._last_serial = ""
         inputs = self._create_topics()
@@ -170,6 +174,15 @@ class SocEstimatorNode(Node):
 
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
+
+    def _read_output_parameters(self) -> None:
+        """The run-time parameters every output reads, kept as attributes (a parameter lookup
+        per field and sample was a twentieth of the node's time); re-read on every set."""
+        p = self._param
+        self._idle_current_a: float = p("idle_current_a")
+        self._charging_current_a: float = p("charging_current_a")
+        self._location: str = p("location")
+        self._serial_number: str = p("serial_number")
 
     def _state_file_path(self, value: str) -> Path | None:
         if value.lower() == "none":
@@ -213,6 +226,7 @@ class SocEstimatorNode(Node):
             rebase_after_s=p("stale_timeout_s"),
             runtime=runtime,
             health=p("learn_health"),
+            filter_period_s=1.0 / p("filter_rate_hz") if p("filter_rate_hz") > 0.0 else 0.0,
         )
         health = None
         if config.health and self.state_file is not None:
@@ -283,7 +297,7 @@ class SocEstimatorNode(Node):
             float(msg.voltage),
             float(msg.temperature),
             bool(msg.present),
-            tuple(float(v) for v in msg.cell_voltage),
+            tuple(msg.cell_voltage),  # an array of float32: its items are Python floats
         )
         self.process_sample(sample, msg.header, msg.location, msg.serial_number)
 
@@ -320,7 +334,7 @@ class SocEstimatorNode(Node):
         now_ns = clock_ns if self._stale_vs_clock else None
         with self._lock:
             # Another pack's first sample is estimated with that pack's health.
-            pack = self.tracker.pack_serial(self._param("serial_number") or serial_number)
+            pack = self.tracker.pack_serial(self._serial_number or serial_number)
             if pack is not None:
                 self._log((pack,))
             result = self.tracker.process(sample, now_ns=now_ns, clock_ns=clock_ns)
@@ -329,6 +343,7 @@ class SocEstimatorNode(Node):
                 self._last_header = header
                 self._last_location, self._last_serial = location, serial_number
                 self._pending_publish = True
+                self._pending_estimate = self._pending_estimate or result.filtered
                 if result.runtime is not None:
                     self._pending_runtime = result.runtime
                 if self._publish_rate_hz <= 0.0:
@@ -373,15 +388,18 @@ class SocEstimatorNode(Node):
             last.voltage_v,
             last.current_a,
             last.temperature_c,
-            idle_current_a=self._param("idle_current_a"),
-            charging_current_a=self._param("charging_current_a"),
+            idle_current_a=self._idle_current_a,
+            charging_current_a=self._charging_current_a,
             full=self.tracker.runtime.full,
-            location=self._param("location") or self._last_location,
-            serial_number=self._param("serial_number") or self._last_serial,
+            location=self._location or self._last_location,
+            serial_number=self._serial_number or self._last_serial,
             capacity_ah=capacity_ah,
             soh=soh,
         )
-        self._soc_pub.publish(battery_state_msg(fields, self._last_header))
+        self._soc_pub.publish(battery_state_msg(fields, self._last_header, self._soc_msg))
+        if not self._pending_estimate:
+            return  # between filter steps: the estimate vector is the last step's
+        self._pending_estimate = False
         health = self.tracker.health
         self._est_pub.publish(
             estimate_msg(
@@ -432,12 +450,12 @@ class SocEstimatorNode(Node):
                 last.voltage_v,
                 last.current_a,
                 stale=True,
-                location=self._param("location") or self._last_location,
-                serial_number=self._param("serial_number") or self._last_serial,
+                location=self._location or self._last_location,
+                serial_number=self._serial_number or self._last_serial,
                 capacity_ah=capacity_ah,
                 soh=soh,
             )
-            self._soc_pub.publish(battery_state_msg(fields, header))
+            self._soc_pub.publish(battery_state_msg(fields, header, self._soc_msg))
 
     def _publish_diagnostics(self) -> None:
         arr = DiagnosticArray()
@@ -534,6 +552,8 @@ class SocEstimatorNode(Node):
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
+        with self._lock:
+            self._read_output_parameters()
         for param in params:
             if param.name == "estimator":
                 with self._lock:

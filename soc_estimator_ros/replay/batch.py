@@ -80,7 +80,8 @@ class _CallLog(T2rcUkf):
     calls: _Calls
     _pending: tuple[float, float]
 
-    def step(self, t_s, current_a, voltage_v, temperature_c=None):
+    def step(self, t_s, current_a, voltage_v, temperature_c=None, held_current_a=None):
+        assert held_current_a is None, "the batch engine steps on every sample"
         calls = self.calls
         calls.t_s.append(t_s)
         calls.current_a.append(current_a)
@@ -256,8 +257,8 @@ def _fill(e: EstimateSeries, soc, var, v_pred, innov, nis, x, p) -> EstimateSeri
 
 def batch_eligible(job: ReplayJob) -> bool:
     """A job whose t2rc_ukf the batch engine can replay: offline, no health, no runtime
-    predictions (CSV, plots), no output bag, and a local input (a URL is fetched by its job,
-    ``fleet.py``)."""
+    predictions (CSV, plots), no output bag, a filter step on every sample, and a local input
+    (a URL is fetched by its job, ``fleet.py``)."""
     return (
         T2rcUkf.name in job.estimators
         and not job.url
@@ -266,6 +267,7 @@ def batch_eligible(job: ReplayJob) -> bool:
         and job.state is None
         and not job.runtime
         and not job.extras.get("output_bag")
+        and job.filter_rate_hz == 0.0
     )
 
 

@@ -21,6 +21,7 @@ the rest.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -118,6 +119,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--learn-health",
         action="store_true",
         help="learn the pack's capacity and R0 factor (the node's learn_health)",
+    )
+    ap.add_argument(
+        "--filter-rate-hz",
+        type=float,
+        default=0.0,
+        help="filter steps per second, the samples between counted as charge (the node's "
+        "filter_rate_hz; 0 = a step on every sample); offline",
     )
     ap.add_argument(
         "--state",
@@ -220,6 +228,10 @@ def _check(args: argparse.Namespace, inputs: list[Path | str], estimators: list[
         raise ReplayError("--state needs one estimator")
     if args.live and (args.state is not None or args.learn_health):
         raise ReplayError("--state and --learn-health replay offline (not --live)")
+    if not (args.filter_rate_hz >= 0.0 and math.isfinite(args.filter_rate_hz)):
+        raise ReplayError(f"--filter-rate-hz {args.filter_rate_hz}: expected >= 0")
+    if args.live and args.filter_rate_hz > 0.0:
+        raise ReplayError("--filter-rate-hz replays offline (not --live)")
     if args.rate is not None and (not args.live or not args.rate > 0):
         raise ReplayError("--rate needs --live and a value > 0")
 
@@ -253,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
             state=args.state,
             cells_in_series=args.cells_in_series,
             capacity_ah=args.capacity_ah,
+            filter_rate_hz=args.filter_rate_hz,
         )
         jobs = [
             replace(base, path=Path(), url=p) if isinstance(p, str) else replace(base, path=p)

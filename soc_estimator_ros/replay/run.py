@@ -91,6 +91,8 @@ class ReplayJob:
     state: Path | None = None
     cells_in_series: int = 0
     capacity_ah: float = 0.0
+    #: Filter steps per second (``TrackerConfig.filter_period_s``); 0 = on every sample.
+    filter_rate_hz: float = 0.0
     #: An fsspec URL the input is fetched from where the job runs (``fleet.py``); "" = path.
     url: str = ""
 
@@ -118,13 +120,22 @@ def tracker_config(
     initial_soc: str,
     runtime: bool = False,
     health: bool = False,
+    filter_rate_hz: float = 0.0,
 ) -> TrackerConfig:
     """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text);
     ``runtime``: predictions every second as the node makes them (else none); ``health``:
-    learn the battery's health."""
+    learn the battery's health; ``filter_rate_hz``: filter steps per second (0: every
+    sample)."""
     rt = RuntimeConfig() if runtime else RuntimeConfig(predict_period_s=0.0)
+    period_s = 1.0 / filter_rate_hz if filter_rate_hz > 0.0 else 0.0
     if initial_soc == "ocv":
-        return TrackerConfig(estimator=estimator, initial_soc="ocv", runtime=rt, health=health)
+        return TrackerConfig(
+            estimator=estimator,
+            initial_soc="ocv",
+            runtime=rt,
+            health=health,
+            filter_period_s=period_s,
+        )
     if initial_soc == "ref":
         if series.soc_ref is None or not math.isfinite(series.soc_ref[0]):
             raise ReplayError("--initial-soc ref: the recording has no reference SoC at its start")
@@ -144,6 +155,7 @@ def tracker_config(
         initial_soc_std=INITIAL_SOC_STD,
         runtime=rt,
         health=health,
+        filter_period_s=period_s,
     )
 
 
@@ -260,6 +272,7 @@ def replay_estimator(
     runtime: bool = False,
     health: bool = False,
     state: Path | None = None,
+    filter_rate_hz: float = 0.0,
 ) -> ReplayResult:
     """One estimator over a recording, offline, behind a tracker (with the runtime
     monitor's predictions when ``runtime``; learning the health when ``health`` or with a
@@ -270,7 +283,9 @@ def replay_estimator(
     tracker = Tracker(
         battery,
         GateConfig.from_limits(battery.limits),
-        tracker_config(series, estimator, initial_soc, runtime, health or state is not None),
+        tracker_config(
+            series, estimator, initial_soc, runtime, health or state is not None, filter_rate_hz
+        ),
         health=saved,
     )
     estimates, start, rt = track_series_runtime(series, tracker, progress)
@@ -361,6 +376,7 @@ def run_job(job: ReplayJob) -> tuple[BatterySeries, BatteryParams, list[ReplayRe
                 job.runtime,
                 job.health,
                 job.state,
+                job.filter_rate_hz,
             )
         check_finite(result, job.name, estimator)
         results.append(result)

@@ -57,6 +57,7 @@ from ..health import HealthMonitor, HealthState
 from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
 from ..units import NS_PER_S, SECONDS_PER_HOUR
+from .decimation import Decimator
 from .gate import GateConfig, InputGate, Verdict
 from .persistence import ResumeDecision, SavedState
 
@@ -117,6 +118,9 @@ class StepResult:
     events: tuple[Event, ...] = ()
     runtime: RuntimeReport | None = None
     cells: CellEstimate | None = None
+    #: False for a sample between filter steps (``TrackerConfig.filter_period_s``): its
+    #: estimate is the last step's, moved by the charge counted since.
+    filtered: bool = True
 
     @property
     def accepted(self) -> bool:
@@ -142,6 +146,9 @@ class TrackerConfig:
         health: learn the battery's health (``health/``) and hand it to the estimator. Off by
             default until its rest readings are validated (docs/architecture.md): every
             estimator then runs on the file's capacity and resistances, as before.
+        filter_period_s: step the estimator (and the runtime and health monitors) at most
+            once per this many seconds, on the interval's counted charge and mean voltage
+            (``decimation.py``); 0 = on every sample.
     """
 
     estimator: str = DEFAULT_ESTIMATOR
@@ -151,8 +158,11 @@ class TrackerConfig:
     rebase_after_s: float = 2.0
     runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
     health: bool = False
+    filter_period_s: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (self.filter_period_s >= 0.0 and math.isfinite(self.filter_period_s)):
+            raise ValueError(f"filter_period_s = {self.filter_period_s!r}: expected >= 0 s")
         init = self.initial_soc
         if isinstance(init, str):
             if init not in ("ocv", "resume"):
@@ -195,7 +205,14 @@ class Tracker:
         self.last_sample: Sample | None = None
         self.last_estimate: Estimate | None = None
         self.last_accept_steady_s: float | None = None
+        #: Time (s, estimator time base) of the last accepted sample (None before).
+        self._t_sample_s: float | None = None
         self.samples_used = 0
+        period = self.config.filter_period_s
+        self._decimator = Decimator(period) if period > 0.0 else None
+        #: The last filter step's estimate (samples between steps move from it).
+        self._step_estimate: Estimate | None = None
+        self._step_cells: CellEstimate | None = None
         #: Grows on every change of the estimate (a save is due when it moved since the last).
         self.revision = 0
         self.missing_samples = 0
@@ -254,9 +271,18 @@ class Tracker:
         t_s = (s.stamp_ns - self.t0_ns) * 1e-9  # as BatterySeries.t_s: the same float
         temperature_c = self.gate.temperature(s.temperature_c)
         temp = temperature_c if math.isfinite(temperature_c) else None
-        t_prev = self.estimator.t_last_s
+        t_prev = self._t_sample_s
+        current_a, voltage_v, cell_voltage_v = s.current_a, s.voltage_v, s.cell_voltage_v
+        held_a: float | None = None
+        if self._decimator is not None:
+            interval = self._decimator.add(t_s, current_a, voltage_v, cell_voltage_v)
+            if interval is None and self._step_estimate is not None:
+                return self._between_steps(t_s, t_prev, s, temperature_c, verdict, events)
+            if interval is not None:
+                current_a, voltage_v = interval.mean_current_a, interval.mean_voltage_v
+                cell_voltage_v, held_a = interval.mean_cell_voltage_v, interval.held_current_a
         try:
-            est = self.estimator.step(t_s, s.current_a, s.voltage_v, temp)
+            est = self.estimator.step(t_s, current_a, voltage_v, temp, held_current_a=held_a)
         except Exception as exc:  # a numerical failure must not end the run
             self.gate.record(Verdict.ESTIMATOR_ERROR)
             return StepResult(Verdict.ESTIMATOR_ERROR, None, (*events, self._recover(exc)))
@@ -267,44 +293,93 @@ class Tracker:
                 None,
                 (*events, self._rejection_event(Verdict.ESTIMATOR_DT, s)),
             )
-        if t_prev is not None:
-            self._count_missing(t_s - t_prev)
-        self.samples_used += 1
+        self._accepted(t_s, t_prev, s, temperature_c)
         if self.health is not None and self.health.update(
-            t_s, s.stamp_ns / NS_PER_S, s.current_a, s.voltage_v, temp, est.soc
+            t_s, s.stamp_ns / NS_PER_S, current_a, voltage_v, temp, est.soc
         ):
             self._apply_health()
         est, notices, report = self.runtime.update(
             t_s,
             s.stamp_ns,
-            s.current_a,
-            s.voltage_v,
+            current_a,
+            voltage_v,
             temperature_c,
             est,
             self.estimator,
             self._recalibrate,
         )
         events += [Event(Level(n.severity), n.message) for n in notices]
-        cells = self._step_cells(t_s, s, est) if s.cell_voltage_v else None
-        self.last_cells = cells
-        self.last_estimate = est
+        cells = self._cells_step(t_s, current_a, cell_voltage_v, est) if cell_voltage_v else None
+        self.last_cells = self._step_cells = cells
+        self.last_estimate = self._step_estimate = est
+        return StepResult(verdict, est, tuple(events), report, cells)
+
+    def _accepted(self, t_s: float, t_prev: float | None, s: Sample, temperature_c: float) -> None:
+        """Book-keeping for every accepted sample, filter step or not."""
+        if t_prev is not None:
+            self._count_missing(t_s - t_prev)
+        self._t_sample_s = t_s
+        self.samples_used += 1
         self.last_sample = Sample(
             s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present, s.cell_voltage_v
         )
         self.last_accept_steady_s = self._steady()
         self.revision += 1
-        return StepResult(verdict, est, tuple(events), report, cells)
 
-    def _step_cells(self, t_s: float, s: Sample, est: Estimate) -> CellEstimate | None:
-        """The cells on an accepted sample, about the pack's estimate of it (``cells/``)."""
+    def _between_steps(
+        self,
+        t_s: float,
+        t_prev: float | None,
+        s: Sample,
+        temperature_c: float,
+        verdict: Verdict,
+        events: list[Event],
+    ) -> StepResult:
+        """A sample between filter steps: the last step's SoC (and cells) moved by the charge
+        counted since, with the step's variance (``decimation.py``)."""
+        assert self._decimator is not None and self._step_estimate is not None
+        self._accepted(t_s, t_prev, s, temperature_c)
+        dq = self._decimator.charge_since_step_as / (SECONDS_PER_HOUR * self.estimator.capacity_ah)
+        step = self._step_estimate
+        est = Estimate(  # not dataclasses.replace: this runs on most samples at a high rate
+            t_s,
+            min(max(step.soc - dq, 0.0), 1.0),
+            step.soc_var,
+            step.x,
+            step.p,
+            step.state_names,
+            math.nan,
+            math.nan,
+            math.nan,
+            step.status,
+            False,
+        )
+        cells = self._step_cells
+        if cells is not None and s.cell_voltage_v:
+            cells = replace(
+                cells,
+                soc=np.clip(cells.soc - dq, 0.0, 1.0),
+                usable_soc=min(max(cells.usable_soc - dq, 0.0), 1.0),
+                usable_charge_soc=min(max(cells.usable_charge_soc - dq, 0.0), 1.0),
+            )
+        else:
+            cells = None
+        self.last_cells = cells
+        self.last_estimate = est
+        return StepResult(verdict, est, tuple(events), None, cells, filtered=False)
+
+    def _cells_step(
+        self, t_s: float, current_a: float, cell_voltage_v: tuple[float, ...], est: Estimate
+    ) -> CellEstimate | None:
+        """The cells on a filter step, about the pack's estimate of it (``cells/``)."""
         n = self.battery.cells_in_series
-        if len(s.cell_voltage_v) != n or n < 2:
+        if len(cell_voltage_v) != n or n < 2:
             self.cells_miscounted += 1
             return None
         if self.cells is None:
             self.cells = CellBank(self.battery, n)
-        v = np.asarray(s.cell_voltage_v, dtype=float)
-        return self.cells.step(t_s, s.current_a, v, est.soc, est.soc_var)
+        v = np.asarray(cell_voltage_v, dtype=float)
+        return self.cells.step(t_s, current_a, v, est.soc, est.soc_var)
 
     def _recalibrate(self, soc: float, soc_std: float) -> Estimate:
         """Reset the SoC (the runtime monitor's FULL) and return the estimate it leaves."""
@@ -353,7 +428,7 @@ class Tracker:
     def _rebase(self, stamp_ns: int, how: str) -> Event:
         """Continue the time line from a source whose stamps jumped (see the module docstring)."""
         newest = self.gate.newest_stamp_ns or stamp_ns
-        last_t = self.estimator.t_last_s
+        last_t = self._t_sample_s
         now = self._steady()
         elapsed = now - (self.last_accept_steady_s if self.last_accept_steady_s else now)
         if last_t is not None and self.t0_ns is not None:

@@ -922,3 +922,32 @@ def test_cell_voltages_publish_the_usable_soc_and_the_cells(make_harness):
     assert offline.estimates.soc_lumped is not None
     np.testing.assert_allclose(lumped, offline.estimates.soc_lumped, rtol=0, atol=1e-12)
     assert all(f"cell.soc_{k}" in decoded[-1] for k in range(1, 5))
+
+
+# -- filter rate below the input rate (issue 28, part 4) ----------------------------------------
+def test_a_filter_rate_publishes_every_sample_and_estimates_at_its_rate(make_harness, sla_run):
+    """``filter_rate_hz`` 2 on the 10 Hz run: ``battery/soc`` answers every sample, equal to
+    the offline tracker with the same filter period; the estimate vector comes once per step."""
+    n = 600
+    run = sla_run.window(0, n)
+    soc0 = float(run.soc_ref[0])
+    h = make_harness(estimator="hybrid", initial_soc=repr(soc0), filter_rate_hz=2.0)
+    h.send(series_msgs(run, n), expect_outputs=False)
+    h.spin_for(0.2)
+    assert len(h.soc) == n  # no sample unanswered
+    # The first sample, then one step per 5 samples of 0.1 s.
+    assert len(h.est) == 1 + (n - 1) // 5
+    battery = h.node.battery
+    tracker = Tracker(
+        battery,
+        GateConfig.from_limits(battery.limits),
+        TrackerConfig(estimator="hybrid", initial_soc=soc0, filter_period_s=0.5),
+    )
+    offline = [
+        tracker.process(Sample(int(s), float(i), float(v), float(t))).estimate.soc
+        for s, i, v, t in zip(
+            run.stamp_ns, run.current_a, run.voltage_v, run.temperature_c, strict=True
+        )
+    ]
+    live = np.array([m.percentage for m in h.soc])
+    assert np.max(np.abs(live - np.array(offline))) < 1e-6  # percentage is float32
