@@ -13,6 +13,9 @@ the tracker steps the estimator once per period on the interval's summary:
   (so the ``R_0`` drop stays paired with the current that caused it; the RC voltages lag the
   mean by ``T / 2``, a fraction of a per cent of their shortest time constant at ``T`` = 0.1 s)
   and the mean cell voltages;
+* **charge efficiency**: applied to the interval's net charge (the held current's sign), so an
+  interval holding both signs of current differs from per-sample counting by the efficiency's
+  share of its charging part;
 * **between steps**: every sample still gets an estimate, the last step's SoC moved by the
   charge counted since (the filter's own prediction of the SoC), with the step's variance.
 
