@@ -54,6 +54,7 @@ from ..cells import CellBank, CellEstimate
 from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
 from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
 from ..health import HealthMonitor, HealthState
+from ..models.coulomb import coulomb_efficiency
 from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
 from ..units import NS_PER_S, SECONDS_PER_HOUR
@@ -336,10 +337,13 @@ class Tracker:
         events: list[Event],
     ) -> StepResult:
         """A sample between filter steps: the last step's SoC (and cells) moved by the charge
-        counted since, with the step's variance (``decimation.py``)."""
+        counted since (its net charge at the charge efficiency, as the next step counts it),
+        with the step's variance (``decimation.py``)."""
         assert self._decimator is not None and self._step_estimate is not None
         self._accepted(t_s, t_prev, s, temperature_c)
-        dq = self._decimator.charge_since_step_as / (SECONDS_PER_HOUR * self.estimator.capacity_ah)
+        q_as = self._decimator.charge_since_step_as
+        eta = coulomb_efficiency(q_as, self.battery.coulomb_efficiency_charge)  # as the step will
+        dq = eta * q_as / (SECONDS_PER_HOUR * self.estimator.capacity_ah)
         step = self._step_estimate
         est = Estimate(  # not dataclasses.replace: this runs on most samples at a high rate
             t_s,

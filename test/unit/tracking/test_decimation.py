@@ -69,6 +69,21 @@ def test_between_steps_the_soc_moves_by_the_charge_counted_since() -> None:
         assert math.isnan(est.innovation_v) and not est.updated
 
 
+def test_a_charge_between_steps_counts_at_the_charge_efficiency() -> None:
+    samples = [(-3.0, 13.8)] * 15
+    _, results = run(
+        TrackerConfig(estimator="coulomb", initial_soc=0.5, filter_period_s=0.1), samples
+    )
+    eta = SLA.coulomb_efficiency_charge
+    assert eta < 1.0  # the SLA file's charge efficiency, else this test shows nothing
+    step = results[10].estimate
+    dq = -3.0 * 0.01 * 3 / (SECONDS_PER_HOUR * SLA.capacity_ah)
+    # Three samples of charge since the step, at the efficiency; the next step lands there.
+    assert results[13].estimate.soc == pytest.approx(step.soc - eta * dq, abs=1e-14)
+    ten = -3.0 * 0.1 * eta / (SECONDS_PER_HOUR * SLA.capacity_ah)
+    assert step.soc == pytest.approx(0.5 - ten, abs=1e-12)
+
+
 def test_a_period_of_one_sample_is_the_filter_on_every_sample() -> None:
     series = read_recording(bag_path("sla_field_run_1_full_rest"))  # 10 Hz
     n = 3000
