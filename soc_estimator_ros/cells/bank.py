@@ -182,16 +182,19 @@ class CellBank:
         cell_voltage_v: np.ndarray,
         pack_soc: float,
         pack_soc_var: float,
+        held_current_a: float | None = None,
     ) -> CellEstimate:
         """One sample: predict from the last one with its current, update with these readings
-        about the pack's SoC (already updated by the pack's estimator on this sample)."""
+        about the pack's SoC (already updated by the pack's estimator on this sample).
+        ``held_current_a``: the current held since the last step instead of its current, as
+        in ``Estimator.step`` (a filter rate below the input rate, ``tracking/decimation.py``)."""
         v = np.asarray(cell_voltage_v, dtype=float)
         ok = self.accept(v)
         self.rejected += ~ok
         f = self.filter
         dt_s = 0.0 if self._t_s is None else t_s - self._t_s
         if self._t_s is not None:
-            f.predict(self._i_prev_a, dt_s)
+            f.predict(self._i_prev_a if held_current_a is None else held_current_a, dt_s)
         self._t_s = t_s
         self._i_prev_a = current_a
         if abs(current_a) > self._rest_a:

@@ -63,6 +63,7 @@ from ..tracking import (
     TrackerConfig,
     Verdict,
 )
+from ..tracking.decimation import filter_period_s
 from ..tracking.persistence import (
     remove_stale_temp_files,
     resume_decision,
@@ -226,7 +227,7 @@ class SocEstimatorNode(Node):
             rebase_after_s=p("stale_timeout_s"),
             runtime=runtime,
             health=p("learn_health"),
-            filter_period_s=1.0 / p("filter_rate_hz") if p("filter_rate_hz") > 0.0 else 0.0,
+            filter_period_s=filter_period_s(p("filter_rate_hz")),
         )
         health = None
         if config.health and self.state_file is not None:

@@ -39,6 +39,7 @@ from ..runtime import RuntimeConfig
 from ..scaling import scale_to_pack
 from ..series import HEALTH_COLUMNS, RUNTIME_COLUMNS, BatterySeries, EstimateSeries, RuntimeSeries
 from ..tracking import GateConfig, Sample, Tracker, TrackerConfig, Verdict
+from ..tracking.decimation import filter_period_s
 from ..tracking.persistence import resume_health, save_state
 from ..units import CurrentSign
 
@@ -127,7 +128,7 @@ def tracker_config(
     learn the battery's health; ``filter_rate_hz``: filter steps per second (0: every
     sample)."""
     rt = RuntimeConfig() if runtime else RuntimeConfig(predict_period_s=0.0)
-    period_s = 1.0 / filter_rate_hz if filter_rate_hz > 0.0 else 0.0
+    period_s = filter_period_s(filter_rate_hz)
     if initial_soc == "ocv":
         return TrackerConfig(
             estimator=estimator,

@@ -12,7 +12,7 @@ the tracker steps the estimator once per period on the interval's summary:
 * **voltage, averaged**: the update reads the interval's mean voltage with its mean current
   (so the ``R_0`` drop stays paired with the current that caused it; the RC voltages lag the
   mean by ``T / 2``, a fraction of a per cent of their shortest time constant at ``T`` = 0.1 s)
-  and the mean cell voltages;
+  and the mean cell voltages; the cells' filters hold the same counted charge;
 * **charge efficiency**: applied to the interval's net charge (the held current's sign), so an
   interval holding both signs of current differs from per-sample counting by the efficiency's
   share of its charging part;
@@ -30,6 +30,12 @@ import numpy as np
 
 #: Slack on the period (s): 10 samples of 0.01 s add up to 0.09999999999999999.
 PERIOD_SLACK_S = 1e-6
+
+
+def filter_period_s(rate_hz: float) -> float:
+    """``TrackerConfig.filter_period_s`` of a filter rate (the node's ``filter_rate_hz``,
+    ``soc_replay --filter-rate-hz``): 0 Hz is 0 s, a step on every sample."""
+    return 1.0 / rate_hz if rate_hz > 0.0 else 0.0
 
 
 @dataclass(frozen=True)

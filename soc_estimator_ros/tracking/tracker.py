@@ -310,7 +310,11 @@ class Tracker:
             self._recalibrate,
         )
         events += [Event(Level(n.severity), n.message) for n in notices]
-        cells = self._cells_step(t_s, current_a, cell_voltage_v, est) if cell_voltage_v else None
+        cells = (
+            self._cells_step(t_s, current_a, held_a, cell_voltage_v, est)
+            if cell_voltage_v
+            else None
+        )
         self.last_cells = self._step_cells = cells
         self.last_estimate = self._step_estimate = est
         return StepResult(verdict, est, tuple(events), report, cells)
@@ -355,7 +359,7 @@ class Tracker:
             math.nan,
             math.nan,
             math.nan,
-            step.status,
+            StepStatus.OK,  # not the step's: an INITIALIZED or GAP belongs to that sample
             False,
         )
         cells = self._step_cells
@@ -373,7 +377,12 @@ class Tracker:
         return StepResult(verdict, est, tuple(events), None, cells, filtered=False)
 
     def _cells_step(
-        self, t_s: float, current_a: float, cell_voltage_v: tuple[float, ...], est: Estimate
+        self,
+        t_s: float,
+        current_a: float,
+        held_a: float | None,
+        cell_voltage_v: tuple[float, ...],
+        est: Estimate,
     ) -> CellEstimate | None:
         """The cells on a filter step, about the pack's estimate of it (``cells/``)."""
         n = self.battery.cells_in_series
@@ -383,7 +392,7 @@ class Tracker:
         if self.cells is None:
             self.cells = CellBank(self.battery, n)
         v = np.asarray(cell_voltage_v, dtype=float)
-        return self.cells.step(t_s, current_a, v, est.soc, est.soc_var)
+        return self.cells.step(t_s, current_a, v, est.soc, est.soc_var, held_a)
 
     def _recalibrate(self, soc: float, soc_std: float) -> Estimate:
         """Reset the SoC (the runtime monitor's FULL) and return the estimate it leaves."""
