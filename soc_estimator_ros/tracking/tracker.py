@@ -213,7 +213,7 @@ class Tracker:
         self._decimator = Decimator(period) if period > 0.0 else None
         #: The last filter step's estimate (samples between steps move from it).
         self._step_estimate: Estimate | None = None
-        self._step_cells: CellEstimate | None = None
+        self._step_cells_estimate: CellEstimate | None = None
         #: Grows on every change of the estimate (a save is due when it moved since the last).
         self.revision = 0
         self.missing_samples = 0
@@ -315,7 +315,7 @@ class Tracker:
             if cell_voltage_v
             else None
         )
-        self.last_cells = self._step_cells = cells
+        self.last_cells = self._step_cells_estimate = cells
         self.last_estimate = self._step_estimate = est
         return StepResult(verdict, est, tuple(events), report, cells)
 
@@ -362,7 +362,7 @@ class Tracker:
             StepStatus.OK,  # not the step's: an INITIALIZED or GAP belongs to that sample
             False,
         )
-        cells = self._step_cells
+        cells = self._step_cells_estimate
         if cells is not None and s.cell_voltage_v:
             cells = replace(
                 cells,
