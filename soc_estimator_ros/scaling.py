@@ -95,6 +95,9 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "model_prior": NONE,
     "follow_tau_s": NONE,
     "model_soc_std": NONE,
+    # fractions of the file's own DC resistance, which the scaling carries
+    "resistance_std_frac": NONE,
+    "resistance_drift_frac_per_h": NONE,
 }
 
 #: The unit of each field of the file's sections that carries one (the others are SoC,

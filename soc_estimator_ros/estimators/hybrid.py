@@ -72,6 +72,26 @@ papers report:
    the identified temperatures, a reset and a CC-CV end re-anchor the count; so does the
    UKF's own SoC while it is trusted (``follow_tau_s``, ``model_soc_std``: ``guard.py``).
    ``x`` and ``p`` stay the UKF's; ``soc`` and ``soc_var`` are the published (guarded) ones.
+8. **A series-resistance error state.** A pack of the same kind is not the pack the file was
+   identified on: the corpus' packs spread +-15 % in resistance (bags/README.md), and the
+   model's drop under load is then off by ``I dR``, the same sign for every sample of a burst.
+   Taken as white noise it is read as SoC: on ``sla_validation_1009`` (resistance x0.867) the
+   model read 0.29 V low at 17 A ((0.867 - 1) x 0.139 Ohm x 17 A = -0.31 V) and the UKF moved
+   the SoC +4 points in 30 s from a start given with std 0.02 (docs/accuracy.md, "Pack
+   spread"). The state gets ``r_delta_ohm``, an error on the file's series resistance, with
+   the voltage ``h(x) - I r_delta_ohm`` (discharge positive). Its prior std is
+   ``resistance_std_frac`` times the file's pack resistance (5 s into 1 C from rest at 50 %
+   SoC and 25 degC, ``TheveninModel.pulse_resistance_ohm``: SLA 0.140, LFP 0.049 Ohm, what a
+   pulse test reads and the spread is stated in): 0.087, the std of the documented +-15 %
+   uniform spread (0.15 / sqrt(3)), not fitted. It is a random walk of
+   ``resistance_drift_frac_per_h`` of that resistance per sqrt(hour) (ageing, a mission's
+   warming). The UKF tells it from the SoC by the current: it scales with ``I``, the OCV's
+   error does not. On a pack that is the file's own it takes part of the model's other errors
+   too (docs/accuracy.md: ``sla_field_run_2_partial`` 0.80 -> 1.00 % MAE). ``kappa`` is
+   lowered by one with it (:meth:`_sigma_kappa`). ``resistance_std_frac: 0`` leaves the state
+   out (the state vector is then item 5's). The health monitor's ``R_0`` factor
+   (``health/resistance.py``, applied by ``set_health``) scales the file's table; this state
+   carries what is left, sample by sample.
 """
 
 from __future__ import annotations
@@ -80,6 +100,7 @@ import math
 
 import numpy as np
 
+from ..units import SECONDS_PER_HOUR
 from .guard import ChargeCount, CountErrorModel, Guarded, guard
 from .t2rc_ukf import T2rcUkf
 
@@ -123,47 +144,96 @@ class Hybrid(T2rcUkf):
         # the model's error as white): the floor of the UKF's SoC variance in the guard, and of
         # the count's when it follows the filter.
         "model_soc_std": 0.01,
+        # Item 8: the series-resistance error state, in fractions of the file's DC resistance:
+        # the prior is the std of the corpus' +-15 % uniform pack spread (not fitted), the
+        # drift per sqrt(hour) what a mission's warming and ageing move it.
+        "resistance_std_frac": 0.087,
+        "resistance_drift_frac_per_h": 0.02,
     }
-    state_names = (*T2rcUkf.state_names, "bias_v")
+    # Without the resistance state (``resistance_std_frac: 0``) ``_init_state`` drops its name.
+    state_names: tuple[str, ...] = (*T2rcUkf.state_names, "bias_v", "r_delta_ohm")
     count: ChargeCount  # the guard's charge count (item 7), made by _init_state
     _rest_fused: bool  # this rest's OCV reading is in the count
 
-    # -- the model-error state (item 5): the last entry of x ---------------------------------
+    # -- the model-error states (items 5 and 8): x = [model state, bias_v, (r_delta_ohm)] ------
+    @property
+    def _has_resistance(self) -> bool:
+        return float(self.tuning["resistance_std_frac"]) > 0.0
+
+    def _pack_resistance_ohm(self) -> float:
+        """The file's resistance 5 s into 1 C at 50 % SoC and 25 degC (item 8), kept."""
+        r = getattr(self, "_pack_r_ohm", None)
+        if r is None:
+            r = self._pack_r_ohm = self.model.pulse_resistance_ohm()
+        return r
+
+    def _sigma_kappa(self) -> float:
+        """The tuning's ``kappa``, less one with the resistance state: ``n + kappa`` stays that of
+        the filter without it, so the other states' points keep their spread ``alpha sqrt(n +
+        kappa)`` and weights, and with the state's variance at 0 the filter is the one without
+        it (the centre's weight takes what the new pair adds). Without this, the wider spread
+        alone (sqrt(5) for sqrt(4)) moved ``sla_field_run_2_partial``'s MAE from 0.80 to 0.92 %
+        with the state's prior at 1e-6 of the resistance; the centre's covariance weight stays
+        positive (``check_sigma_weights``)."""
+        return super()._sigma_kappa() - (1.0 if self._has_resistance else 0.0)
+
     def _rested_state(self, soc: float) -> np.ndarray:
-        return np.append(self.model.rested_state(soc), 0.0)
+        extra = [0.0, 0.0] if self._has_resistance else [0.0]
+        return np.append(self.model.rested_state(soc), extra)
 
     def _initial_covariance(self, soc_var: float) -> np.ndarray:
-        p = np.zeros((self.model.dim_x + 1, self.model.dim_x + 1))
-        p[:-1, :-1] = super()._initial_covariance(soc_var)
+        n = self.model.dim_x
+        size = n + (2 if self._has_resistance else 1)
+        p = np.zeros((size, size))
+        p[:n, :n] = super()._initial_covariance(soc_var)
         # As small as a branch voltage's (or the stationary variance, if smaller): the start's
         # voltage is what converges a wrong SoC, so it must not go to the bias (with the
         # stationary 60 mV, a -30 % start on SLA took 20 minutes instead of seconds).
-        p[-1, -1] = min(self.tuning["p0_v"], self.tuning["bias_std_v"] ** 2)
+        p[n, n] = min(self.tuning["p0_v"], self.tuning["bias_std_v"] ** 2)
+        if self._has_resistance:
+            std_ohm = self.tuning["resistance_std_frac"] * self._pack_resistance_ohm()
+            p[n + 1, n + 1] = std_ohm**2
         return p
 
     def _fx(self, xs: np.ndarray, dt: float, current_a: float = 0.0, temp_c=None) -> np.ndarray:
+        n = self.model.dim_x
         out = np.empty_like(xs)
-        out[:, :-1] = self.model.step_batch(xs[:, :-1], current_a, dt, temp_c)
-        out[:, -1] = xs[:, -1] * math.exp(-dt / self.tuning["bias_tau_s"])
+        out[:, :n] = self.model.step_batch(xs[:, :n], current_a, dt, temp_c)
+        out[:, n] = xs[:, n] * math.exp(-dt / self.tuning["bias_tau_s"])
+        out[:, n + 1 :] = xs[:, n + 1 :]  # the resistance error: a random walk
         return out
 
     def _hx(self, xs: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
-        v = self.model.terminal_voltage_batch(xs[:, :-1], current_a, temp_c, self.z_soc)
+        n = self.model.dim_x
+        v = self.model.terminal_voltage_batch(xs[:, :n], current_a, temp_c, self.z_soc)
         if not self.at_rest:
-            v = v + xs[:, -1]
+            v = v + xs[:, n]
+        if xs.shape[1] > n + 1 and current_a != 0.0:
+            v = v - current_a * xs[:, n + 1]
         return v[:, np.newaxis]
 
     def _process_noise(self, dt_s: float) -> np.ndarray:
         # Built again only when dt or the tuning changes (a 10 Hz stream repeats its dt); the
         # filters read Q and never write it.
         t = self.tuning
-        key = (dt_s, t["q_diag"], t["bias_std_v"], t["bias_tau_s"])
+        key = (
+            dt_s,
+            t["q_diag"],
+            t["bias_std_v"],
+            t["bias_tau_s"],
+            t["resistance_std_frac"],
+            t["resistance_drift_frac_per_h"],
+        )
         if key != getattr(self, "_q_bias_key", None):
             n = self.model.dim_x
-            q = np.zeros((n + 1, n + 1))
+            size = self.kf.x.size
+            q = np.zeros((size, size))
             q[:n, :n] = super()._process_noise(dt_s)
             decay = math.exp(-2.0 * dt_s / t["bias_tau_s"])
             q[n, n] = t["bias_std_v"] ** 2 * (1.0 - decay)
+            if size > n + 1:
+                drift_ohm = t["resistance_drift_frac_per_h"] * self._pack_resistance_ohm()
+                q[n + 1, n + 1] = drift_ohm**2 * dt_s / SECONDS_PER_HOUR
             self._q_bias_key, self._q_bias = key, q
         return self._q_bias
 
@@ -231,6 +301,8 @@ class Hybrid(T2rcUkf):
         self.count.fuse(float(self.kf.x[i]) - self.count.soc, 1.0, r, floor_var)
 
     def _init_state(self, soc: float, soc_var: float) -> None:
+        names = Hybrid.state_names
+        self.state_names = names if self._has_resistance else names[:-1]
         self.at_rest = False
         self._rest_fused = False
         self._temp_c: float | None = None

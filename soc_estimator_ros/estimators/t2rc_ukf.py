@@ -171,7 +171,7 @@ class T2rcUkf(FilterpyState, Estimator):
             self.model = self._make_model()
             n = self._rested_state(0.5).size
             points = BatchMerweScaledSigmaPoints(
-                n, self.tuning["alpha"], self.tuning["beta"], self.tuning["kappa"]
+                n, self.tuning["alpha"], self.tuning["beta"], self._sigma_kappa()
             )
             check_sigma_weights(self.name, points)
             self.kf = BatchUnscentedKalmanFilter(
@@ -185,6 +185,10 @@ class T2rcUkf(FilterpyState, Estimator):
         # its modes, ``z_soc`` their sum (what the voltage reads).
         self.z_modes = self.model.surface_rest()
         self.z_soc = 0.0
+
+    def _sigma_kappa(self) -> float:
+        """Van der Merwe's ``kappa`` for the sigma points: the tuning's."""
+        return float(self.tuning["kappa"])
 
     def _rested_state(self, soc: float) -> np.ndarray:
         """The filter's state for a pack at rest at ``soc``."""

@@ -269,8 +269,9 @@ class RuntimeMonitor:
             self._surface_z = z
 
     def pack_state(self, est: Estimate, estimator: Any, temperature_c: float | None) -> PackState:
-        """The state the predictions read: the estimator's branch voltages, surface lag and
-        model-error voltage where it has them (by name), else the monitor's own."""
+        """The state the predictions read: the estimator's branch voltages, surface lag,
+        model-error voltage and resistance error where it has them (by name), else the
+        monitor's own (no model error)."""
         names = est.state_names
         branch = self._estimator_branches(est)
         if branch is None:
@@ -279,12 +280,14 @@ class RuntimeMonitor:
         if z is None:
             z = self._surface_z
         bias = float(est.x[names.index("bias_v")]) if "bias_v" in names else 0.0
+        r_delta = float(est.x[names.index("r_delta_ohm")]) if "r_delta_ohm" in names else 0.0
         return PackState(
             soc=est.soc,
             soc_std=est.soc_std,
             branch_v=tuple(float(v) for v in branch),
             surface_z=tuple(float(v) for v in z),
             bias_v=bias,
+            r_delta_ohm=r_delta,
             temperature_c=temperature_c,
         )
 

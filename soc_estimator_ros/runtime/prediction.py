@@ -102,6 +102,8 @@ class PackState:
         surface_z: the surface lag's modes ``z_j`` (SoC; empty without a lag).
         bias_v: a model-error voltage added to the model's terminal voltage (the hybrid's
             ``bias_v``; 0 without one), held over the horizons.
+        r_delta_ohm: an error on the model's series resistance (the hybrid's ``r_delta_ohm``;
+            0 without one): the power predictions' voltage less ``I r_delta_ohm``.
         temperature_c: temperature (degC; None: the tables' 25 degC row).
     """
 
@@ -110,6 +112,7 @@ class PackState:
     branch_v: tuple[float, ...]
     surface_z: tuple[float, ...] = ()
     bias_v: float = 0.0
+    r_delta_ohm: float = 0.0
     temperature_c: float | None = None
 
 
@@ -187,9 +190,11 @@ def _terminal(
     z: list[np.ndarray],
     i: np.ndarray,
     bias_v: float,
+    r_delta_ohm: float,
     temperature_c: float | None,
 ) -> np.ndarray:
-    """:meth:`TheveninModel.terminal_voltage`, elementwise, plus ``bias_v``."""
+    """:meth:`TheveninModel.terminal_voltage`, elementwise, plus ``bias_v`` less
+    ``I r_delta_ohm`` (the hybrid's ``_hx``)."""
     p = model.params
     z_soc = sum(z) if z else 0.0
     v = (
@@ -203,6 +208,8 @@ def _terminal(
         v = v + model.ocv_offset.at_array(soc, temperature_c)
     for vk in v_rc:
         v = v - vk
+    if r_delta_ohm:
+        v = v - i * r_delta_ohm
     return v + bias_v
 
 
@@ -230,7 +237,7 @@ def terminal_path_v(
         if span > 0.0:
             for _ in range(substeps):
                 soc, v_rc, z = _zoh_step(model, soc, v_rc, z, i, span / substeps, t_c)
-        out.append(_terminal(model, soc, v_rc, z, i, state.bias_v, t_c))
+        out.append(_terminal(model, soc, v_rc, z, i, state.bias_v, state.r_delta_ohm, t_c))
         t_prev = t
     return np.array(out)
 

@@ -62,16 +62,10 @@ def run(bag: Path, estimator: str, soc_offset: float) -> tuple[Accuracy, np.ndar
 pytestmark = pytest.mark.skipif(not FIELD_RUNS, reason="no field-run bags under bags/")
 
 # Where a target is not met today: (test, bag, start offset) -> the measured numbers. These stay
-# strict xfails, with the bound untouched, so they flag the day they pass. Cause (README
-# "Accuracy"): from -30 %, LFP run 2 converges within 21 s to 1.5-2 % below the truth where
-# its OCV climbs 15 mV per % (SoC 0.79) and the model's start-up error is that size, then
-# holds it on the flat plateau (0.73 -> 0.53) where the voltage cannot bring it back: the pack
-# there sits 15-25 mV below the model after each 10-30 A burst. It stays within 2 % (max 1.80
-# %, the convergence target met); only this test's added MAE bound is missed.
-SHORTFALLS = {
-    ("hybrid", "lfp_field_run_2_partial", -0.3): "MAE 1.02 %, max 1.80 % (within 2 % after "
-    "21 s, and from then on)",
-}
+# strict xfails, with the bound untouched, so they flag the day they pass. None today:
+# LFP run 2 from -30 % (MAE 1.02 % before) meets it since the hybrid's resistance-error state
+# (MAE 0.94 %, max 1.60 %).
+SHORTFALLS: dict[tuple[str, str, float], str] = {}
 
 
 def cases(estimator: str, offsets: tuple[float, ...]) -> list:

@@ -206,7 +206,7 @@ def test_replay_matches_the_offline_estimator_sample_for_sample(make_harness, sl
     # The estimate vector is labelled and sized for the hybrid state.
     labels = h.est[-1].layout.dim[0].label.removeprefix("fields:").split(",")
     assert labels == estimate_labels(h.node.tracker.estimator.state_names)
-    assert len(h.est[-1].data) == len(labels) == 7 + 4 + 16  # 7 scalars, x and P of 4 states
+    assert len(h.est[-1].data) == len(labels) == 7 + 5 + 25  # 7 scalars, x and P of 5 states
     assert decode_estimate(h.est[-1])["stamp_s"] == pytest.approx(sla_run.stamp_ns[n - 1] * 1e-9)
 
 

@@ -50,8 +50,8 @@ def test_a_report_every_second_of_sample_time_with_every_field():
 
 
 def test_predictions_read_the_estimators_branch_voltages_else_the_models_own():
-    """The hybrid's state holds v1_v, v2_v and bias_v: the prediction reads them. Coulomb
-    counting has none: the monitor runs the model's branches on the current itself, and they
+    """The hybrid's state holds v1_v, v2_v, bias_v and r_delta_ohm: the prediction reads them.
+    Coulomb counting has none: the monitor runs the model's branches on the current itself, and they
     match the t2rc_ukf's prediction (the same model) to within its corrections."""
     samples = [(10.0, 12.0)] * 300
     hybrid = tracker(estimator="hybrid")
@@ -61,6 +61,7 @@ def test_predictions_read_the_estimators_branch_voltages_else_the_models_own():
     names = est.state_names
     assert state.branch_v == (est.x[names.index("v1_v")], est.x[names.index("v2_v")])
     assert state.bias_v == est.x[names.index("bias_v")]
+    assert state.r_delta_ohm == est.x[names.index("r_delta_ohm")]
     coulomb = tracker(estimator="coulomb")
     feed(coulomb, samples)
     own = coulomb.runtime.pack_state(coulomb.last_estimate, coulomb.estimator, 25.0)
