@@ -36,7 +36,13 @@ from ..replay.cli import expand_inputs
 from ..replay.fleet import run_on_dask
 from ..replay.outputs import ProgressBar
 from .crossval import CrossValidation, cross_validate, folds
-from .objective import COVERAGE_BAND, COVERAGE_WEIGHT, score_recording
+from .objective import (
+    COVERAGE_BAND,
+    COVERAGE_WEIGHT,
+    HARM_ALLOWANCE_PCT,
+    HARM_WEIGHT,
+    score_recording,
+)
 from .search import DEFAULT_SPACES, Dimension, apply, candidates, parse_dimension
 
 #: Exit status when the tuning is refused (its held-out score is worse than the file's).
@@ -140,7 +146,8 @@ def report(cv: CrossValidation, names: list[str], cands: list[dict[str, float]])
     lo, hi = COVERAGE_BAND
     lines = [
         f"objective J = MAE + max/2 + {COVERAGE_WEIGHT:g} x distance of the ±2σ coverage from "
-        f"[{lo:g}, {hi:g}] + min(t_converge / 600 s, 3), % SoC (lower is better)"
+        f"[{lo:g}, {hi:g}] + min(t_converge / 600 s, 3) + {HARM_WEIGHT:g} x max(0, max - "
+        f"coulomb max - {HARM_ALLOWANCE_PCT:g}), % SoC (lower is better)"
     ]
     for k, f in enumerate(cv.folds, 1):
         held = ", ".join(names[i] for i in f.held_out)

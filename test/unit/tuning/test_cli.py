@@ -64,12 +64,18 @@ def test_the_score_is_the_accuracy_and_coverage_of_the_true_start(excerpts):
     assert score.max_pct == pytest.approx(100 * acc.max_abs, rel=1e-12)
     assert score.coverage == pytest.approx(cover, abs=1e-12)
     assert math.isnan(score.t_converge_s)
+    count = run_estimator(make_estimator("coulomb", battery, float(series.soc_ref[0]), 0.1), series)
+    cc_max = np.max(np.abs(count.soc[after] - series.soc_ref[after]))
+    assert score.coulomb_max_pct == pytest.approx(100 * cc_max, rel=1e-12)
 
 
 def test_the_objective_weighs_as_its_docstring_says():
     assert Score(1.0, 2.0, 0.95, math.nan).total == pytest.approx(2.0)  # in the band: no cost
     assert Score(1.0, 2.0, 0.80, 600.0).total == pytest.approx(2.0 + 20 * 0.10 + 1.0)
     assert Score(0.0, 0.0, 1.00, math.inf).total == pytest.approx(20 * 0.02 + 3.0)
+    # The do-no-harm term: 2 per point of max beyond coulomb counting's max + 1 point.
+    assert Score(1.0, 2.0, 0.95, math.nan, 1.5).total == pytest.approx(2.0)  # within the rule
+    assert Score(1.0, 4.0, 0.95, math.nan, 1.5).total == pytest.approx(3.0 + 2 * 1.5)
 
 
 def test_soc_tune_is_deterministic_and_writes_only_an_accepted_tuning(excerpts, tmp_path, capsys):
