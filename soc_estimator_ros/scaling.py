@@ -95,7 +95,7 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "model_prior": NONE,
     "follow_tau_s": NONE,
     "model_soc_std": NONE,
-    # fractions of the file's own DC resistance, which the scaling carries
+    # fractions of the file's own 5-s pulse resistance, which the scaling carries
     "resistance_std_frac": NONE,
     "resistance_drift_frac_per_h": NONE,
 }

@@ -144,7 +144,7 @@ class Hybrid(T2rcUkf):
         # the model's error as white): the floor of the UKF's SoC variance in the guard, and of
         # the count's when it follows the filter.
         "model_soc_std": 0.01,
-        # Item 8: the series-resistance error state, in fractions of the file's DC resistance:
+        # Item 8: the series-resistance error state, in fractions of the file's 5-s resistance:
         # the prior is the std of the corpus' +-15 % uniform pack spread (not fitted), the
         # drift per sqrt(hour) what a mission's warming and ageing move it.
         "resistance_std_frac": 0.087,
@@ -171,10 +171,12 @@ class Hybrid(T2rcUkf):
         """The tuning's ``kappa``, less one with the resistance state: ``n + kappa`` stays that of
         the filter without it, so the other states' points keep their spread ``alpha sqrt(n +
         kappa)`` and weights, and with the state's variance at 0 the filter is the one without
-        it (the centre's weight takes what the new pair adds). Without this, the wider spread
-        alone (sqrt(5) for sqrt(4)) moved ``sla_field_run_2_partial``'s MAE from 0.80 to 0.92 %
-        with the state's prior at 1e-6 of the resistance; the centre's covariance weight stays
-        positive (``check_sigma_weights``)."""
+        it, to rounding (the centre's weight takes what the new pair adds; tested). With the
+        tuning's ``kappa`` instead, the wider spread alone (sqrt(5) for sqrt(4)) moves
+        ``sla_field_run_2_partial``'s MAE by 0.002 point with the state at zero variance and
+        drift (0.7967 -> 0.7987 %): small, but the filter would then not be the limit of the
+        one with the state. The centre's covariance weight stays positive
+        (``check_sigma_weights``)."""
         return super()._sigma_kappa() - (1.0 if self._has_resistance else 0.0)
 
     def _rested_state(self, soc: float) -> np.ndarray:
