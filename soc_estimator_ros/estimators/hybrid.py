@@ -167,6 +167,15 @@ class Hybrid(T2rcUkf):
             r = self._pack_r_ohm = self.model.pulse_resistance_ohm()
         return r
 
+    def _learned_resistance(self) -> tuple[float, float] | None:
+        """The resistance state and its variance, if this filter has learned one (item 8): a
+        reset (``reset_soc``: a CC-CV end, the reset service, a resume) re-initializes the SoC
+        and the branches, and keeps these."""
+        kf = getattr(self, "kf", None)
+        if kf is None or not self._has_resistance or kf.x.size != self.model.dim_x + 2:
+            return None
+        return float(kf.x[-1]), float(kf.P[-1, -1])
+
     def _sigma_kappa(self) -> float:
         """The tuning's ``kappa``, less one with the resistance state: ``n + kappa`` stays that of
         the filter without it, so the other states' points keep their spread ``alpha sqrt(n +
@@ -319,7 +328,10 @@ class Hybrid(T2rcUkf):
                 errors, self.capacity_ah, self.battery.coulomb_efficiency_charge
             )
         self.count.anchor(soc, soc_var)
+        kept = self._learned_resistance()
         super()._init_state(soc, soc_var)
+        if kept is not None:  # a reset tells the SoC, not the pack: its resistance stays learned
+            self.kf.x[-1], self.kf.P[-1, -1] = kept
         self.rest_s = 0.0
         self.current_lp_a = 0.0
         self.nis_avg = 1.0

@@ -454,6 +454,24 @@ def test_hybrid_puts_a_pack_resistance_error_into_its_resistance_state_not_the_s
     assert r_off == 0.0 and abs(end_off) > max(5.0 * abs(end), 0.03)
 
 
+def test_a_soc_reset_keeps_the_learned_resistance() -> None:
+    """A reset (a CC-CV end, the reset service) says what the SoC is, not what the pack is: the
+    resistance state and its variance stay; the SoC, branches and bias start again."""
+    est = make_estimator("hybrid", SLA, 0.9, 0.02, tuning=dict(SLA.filters["hybrid"]))
+    model = SLA.thevenin_model()
+    x = model.rested_state(0.9)
+    for k in range(600):
+        current = 15.0 if k % 90 < 30 else 1.0
+        est.step(float(k), current, model.terminal_voltage(x, current) + 0.018 * current)
+        x = model.step(x, current, 1.0)
+    r, var = float(est.x[-1]), float(est.p[-1, -1])
+    assert r < -0.01  # learned (about -18 mOhm)
+    est.reset_soc(0.5, 0.05)
+    assert est.x[-1] == r and est.p[-1, -1] == var
+    assert est.x[0] == 0.5 and est.p[0, 0] == pytest.approx(0.05**2)
+    assert est.x[-2] == 0.0  # the bias starts again
+
+
 def test_hybrid_without_the_resistance_state_is_the_filter_with_it_at_zero_variance() -> None:
     """``resistance_std_frac: 0`` drops the state; a state of (almost) no variance and no drift
     gives the same SoC (``Hybrid._sigma_kappa``: the other points keep their spread)."""
