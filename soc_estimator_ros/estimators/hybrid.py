@@ -160,6 +160,11 @@ class Hybrid(T2rcUkf):
     def _has_resistance(self) -> bool:
         return float(self.tuning["resistance_std_frac"]) > 0.0
 
+    @property
+    def _dim_x(self) -> int:
+        """The state's size: the model's, ``bias_v`` and, with item 8, ``r_delta_ohm``."""
+        return self.model.dim_x + (2 if self._has_resistance else 1)
+
     def _pack_resistance_ohm(self) -> float:
         """The file's resistance 5 s into 1 C at 50 % SoC and 25 degC (item 8), kept."""
         r = getattr(self, "_pack_r_ohm", None)
@@ -172,7 +177,7 @@ class Hybrid(T2rcUkf):
         reset (``reset_soc``: a CC-CV end, the reset service, a resume) re-initializes the SoC
         and the branches, and keeps these."""
         kf = getattr(self, "kf", None)
-        if kf is None or not self._has_resistance or kf.x.size != self.model.dim_x + 2:
+        if kf is None or not self._has_resistance:
             return None
         return float(kf.x[-1]), float(kf.P[-1, -1])
 
@@ -189,13 +194,11 @@ class Hybrid(T2rcUkf):
         return super()._sigma_kappa() - (1.0 if self._has_resistance else 0.0)
 
     def _rested_state(self, soc: float) -> np.ndarray:
-        extra = [0.0, 0.0] if self._has_resistance else [0.0]
-        return np.append(self.model.rested_state(soc), extra)
+        return np.append(self.model.rested_state(soc), np.zeros(self._dim_x - self.model.dim_x))
 
     def _initial_covariance(self, soc_var: float) -> np.ndarray:
         n = self.model.dim_x
-        size = n + (2 if self._has_resistance else 1)
-        p = np.zeros((size, size))
+        p = np.zeros((self._dim_x, self._dim_x))
         p[:n, :n] = super()._initial_covariance(soc_var)
         # As small as a branch voltage's (or the stationary variance, if smaller): the start's
         # voltage is what converges a wrong SoC, so it must not go to the bias (with the
@@ -219,7 +222,7 @@ class Hybrid(T2rcUkf):
         v = self.model.terminal_voltage_batch(xs[:, :n], current_a, temp_c, self.z_soc)
         if not self.at_rest:
             v = v + xs[:, n]
-        if xs.shape[1] > n + 1 and current_a != 0.0:
+        if self._has_resistance and current_a != 0.0:
             v = v - current_a * xs[:, n + 1]
         return v[:, np.newaxis]
 
@@ -237,12 +240,11 @@ class Hybrid(T2rcUkf):
         )
         if key != getattr(self, "_q_bias_key", None):
             n = self.model.dim_x
-            size = self.kf.x.size
-            q = np.zeros((size, size))
+            q = np.zeros((self._dim_x, self._dim_x))
             q[:n, :n] = super()._process_noise(dt_s)
             decay = math.exp(-2.0 * dt_s / t["bias_tau_s"])
             q[n, n] = t["bias_std_v"] ** 2 * (1.0 - decay)
-            if size > n + 1:
+            if self._has_resistance:
                 drift_ohm = t["resistance_drift_frac_per_h"] * self._pack_resistance_ohm()
                 q[n + 1, n + 1] = drift_ohm**2 * dt_s / SECONDS_PER_HOUR
             self._q_bias_key, self._q_bias = key, q
