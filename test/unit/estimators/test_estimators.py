@@ -417,28 +417,38 @@ def test_hybrid_puts_a_slow_voltage_error_into_its_bias_not_the_soc() -> None:
     assert abs(soc_err_off) > 5.0 * abs(soc_err)
 
 
-def bursts_on_a_pack_of_lower_resistance(resistance_std_frac: float) -> tuple[float, float, float]:
-    """SLA from SoC 0.9, a correct start (std 0.02): 30 minutes of 30 s at 15 A and 60 s at
-    1 A, at 1 Hz, on a pack whose series resistance is 18 mOhm below the file's (what
-    ``sla_validation_1009``'s x0.867 pack showed: 0.29 V at 17 A). The truth is the estimator's
-    own model with that drop taken off (a unit test of the filter, not an accuracy
-    measurement). Returns the largest published SoC error, the error at the end and the
-    resistance state at the end (0 without it)."""
-    delta_r_ohm = -0.018
+#: The pack of the resistance tests: 18 mOhm below the file's series resistance (what
+#: ``sla_validation_1009``'s x0.867 pack showed: 0.29 V at 17 A).
+DELTA_R_OHM = -0.018
+
+
+def feed_bursts_on_a_pack_of_lower_resistance(est, seconds: int) -> tuple[float, float]:
+    """SLA from SoC 0.9, bursts of 30 s at 15 A and 60 s at 1 A, at 1 Hz, for ``seconds``, on
+    a pack :data:`DELTA_R_OHM` from the file's. The truth is the estimator's own model with that
+    drop taken off (a unit test of the filter, not an accuracy measurement). Returns the largest
+    published SoC error and the error at the end."""
     model = SLA.thevenin_model()
     x = model.rested_state(0.9)
-    tuning = {**SLA.filters["hybrid"], "resistance_std_frac": resistance_std_frac}
-    est = make_estimator("hybrid", SLA, 0.9, 0.02, tuning=tuning)
     worst = 0.0
-    for k in range(1800):
+    for k in range(seconds):
         current = 15.0 if k % 90 < 30 else 1.0
-        voltage_v = model.terminal_voltage(x, current) - current * delta_r_ohm
+        voltage_v = model.terminal_voltage(x, current) - current * DELTA_R_OHM
         out = est.step(float(k), current, voltage_v)
         x = model.step(x, current, 1.0)
         worst = max(worst, abs(out.soc - float(x[0])))
+    return worst, out.soc - float(x[0])
+
+
+def bursts_on_a_pack_of_lower_resistance(resistance_std_frac: float) -> tuple[float, float, float]:
+    """30 minutes of :func:`feed_bursts_on_a_pack_of_lower_resistance` from a correct start
+    (std 0.02): the largest SoC error, the error at the end and the resistance state at the end
+    (0 without it)."""
+    tuning = {**SLA.filters["hybrid"], "resistance_std_frac": resistance_std_frac}
+    est = make_estimator("hybrid", SLA, 0.9, 0.02, tuning=tuning)
+    worst, end = feed_bursts_on_a_pack_of_lower_resistance(est, 1800)
     names = est.state_names
-    r_delta = float(out.x[names.index("r_delta_ohm")]) if "r_delta_ohm" in names else 0.0
-    return worst, out.soc - float(x[0]), r_delta
+    r_delta = float(est.x[names.index("r_delta_ohm")]) if "r_delta_ohm" in names else 0.0
+    return worst, end, r_delta
 
 
 def test_hybrid_puts_a_pack_resistance_error_into_its_resistance_state_not_the_soc() -> None:
@@ -446,7 +456,7 @@ def test_hybrid_puts_a_pack_resistance_error_into_its_resistance_state_not_the_s
     # Measured: r_delta -17.96 mOhm at the end (of -18); SoC 0.04 % off at the end, 0.60 % at
     # worst (the first bursts, before the state has learned). Bounds: within 2 mOhm (a sixth of
     # the state's prior std, 12.2 mOhm), 0.5 %, 2 %.
-    assert abs(r_delta - (-0.018)) < 0.002
+    assert abs(r_delta - DELTA_R_OHM) < 0.002
     assert abs(end) < 0.005 and worst < 0.02
     # Without it the 0.27 V at 15 A go into the SoC: 6.2 % off at the end (measured; bound
     # 5 times the error with the state, and 3 %).
@@ -458,12 +468,7 @@ def test_a_soc_reset_keeps_the_learned_resistance() -> None:
     """A reset (a CC-CV end, the reset service) says what the SoC is, not what the pack is: the
     resistance state and its variance stay; the SoC, branches and bias start again."""
     est = make_estimator("hybrid", SLA, 0.9, 0.02, tuning=dict(SLA.filters["hybrid"]))
-    model = SLA.thevenin_model()
-    x = model.rested_state(0.9)
-    for k in range(600):
-        current = 15.0 if k % 90 < 30 else 1.0
-        est.step(float(k), current, model.terminal_voltage(x, current) + 0.018 * current)
-        x = model.step(x, current, 1.0)
+    feed_bursts_on_a_pack_of_lower_resistance(est, 600)
     r, var = float(est.x[-1]), float(est.p[-1, -1])
     assert r < -0.01  # learned (about -18 mOhm)
     est.reset_soc(0.5, 0.05)
