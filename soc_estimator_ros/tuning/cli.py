@@ -41,6 +41,7 @@ from .objective import (
     COVERAGE_WEIGHT,
     HARM_ALLOWANCE_PCT,
     HARM_WEIGHT,
+    coulomb_max_pct,
     score_recording,
 )
 from .search import DEFAULT_SPACES, Dimension, apply, candidates, parse_dimension
@@ -61,6 +62,11 @@ def _battery(path: str):
     return load_battery_params(Path(path))
 
 
+@cache
+def _baseline_max_pct(recording: str, params: str) -> float:  # once per recording and process
+    return coulomb_max_pct(_recording(recording), _battery(params))
+
+
 def _score(task: Task) -> float:
     """One candidate on one recording (a task for the pool or a Dask worker)."""
     recording, params, estimator, values, wrong = task
@@ -68,7 +74,9 @@ def _score(task: Task) -> float:
     base = make_estimator(estimator, battery, 0.5, 0.1, battery.filters.get(estimator)).tuning
     tuning = apply(base, values)
     try:
-        return score_recording(_recording(recording), battery, estimator, tuning, wrong).total
+        baseline = _baseline_max_pct(recording, params)
+        series = _recording(recording)
+        return score_recording(series, battery, estimator, tuning, wrong, baseline).total
     except (FloatingPointError, np.linalg.LinAlgError):
         return math.inf  # a tuning that breaks the filter is the worst
 

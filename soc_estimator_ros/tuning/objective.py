@@ -84,29 +84,46 @@ def _wrong_soc(true_soc: float, offset: float) -> float:
     return true_soc - offset if true_soc >= 0.5 else true_soc + offset
 
 
+def _true_start(series: BatterySeries) -> tuple[np.ndarray, float, np.ndarray]:
+    """The reference, its first finite SoC (clipped) and the samples after the window."""
+    if series.soc_ref is None:
+        raise ValueError("a recording without a reference SoC cannot be scored")
+    ref = series.soc_ref
+    soc0 = float(np.clip(ref[np.flatnonzero(np.isfinite(ref))[0]], 0.0, 1.0))
+    after = (series.t_s - series.t_s[0] >= WINDOW_S) & np.isfinite(ref)
+    if not after.any():
+        raise ValueError(f"the recording is shorter than the {WINDOW_S:g} s window")
+    return ref, soc0, after
+
+
+def coulomb_max_pct(series: BatterySeries, battery: BatteryParams) -> float:
+    """Coulomb counting's max error after the window from the true start (%): the baseline of
+    the harm term. It does not depend on the tuning scored: ``soc_tune`` computes it once per
+    recording."""
+    ref, soc0, after = _true_start(series)
+    count = run_estimator(make_estimator("coulomb", battery, soc0, START_STD), series)
+    return float(100.0 * np.max(np.abs(count.soc[after] - ref[after])))
+
+
 def score_recording(
     series: BatterySeries,
     battery: BatteryParams,
     estimator: str,
     tuning: Mapping[str, Any],
     wrong_start: float = 0.3,
+    baseline_max_pct: float | None = None,
 ) -> Score:
     """:class:`Score` of ``estimator`` with ``tuning`` (over the file's own block) on
-    ``series``; ``wrong_start`` 0: no wrong-start run (``t_converge_s`` NaN)."""
-    if series.soc_ref is None:
-        raise ValueError("a recording without a reference SoC cannot be scored")
-    ref = series.soc_ref
+    ``series``; ``wrong_start`` 0: no wrong-start run (``t_converge_s`` NaN);
+    ``baseline_max_pct``: :func:`coulomb_max_pct` of ``series``, computed here when None."""
+    ref, soc0, after = _true_start(series)
     t_rel = series.t_s - series.t_s[0]
-    soc0 = float(np.clip(ref[np.flatnonzero(np.isfinite(ref))[0]], 0.0, 1.0))
     merged = {**battery.filters.get(estimator, {}), **tuning}
     est = run_estimator(make_estimator(estimator, battery, soc0, START_STD, merged), series)
-    after = (t_rel >= WINDOW_S) & np.isfinite(ref)
-    if not after.any():
-        raise ValueError(f"the recording is shorter than the {WINDOW_S:g} s window")
     err = est.soc[after] - ref[after]
     coverage = float(np.mean(np.abs(err) <= 2.0 * est.soc_std[after]))
-    count = run_estimator(make_estimator("coulomb", battery, soc0, START_STD), series)
-    coulomb_max = float(np.max(np.abs(count.soc[after] - ref[after])))
+    if baseline_max_pct is None:
+        baseline_max_pct = coulomb_max_pct(series, battery)
     t_conv = math.nan
     if wrong_start > 0.0:
         wrong = make_estimator(
@@ -120,5 +137,5 @@ def score_recording(
         float(100.0 * np.max(np.abs(err))),
         coverage,
         t_conv,
-        float(100.0 * coulomb_max),
+        baseline_max_pct,
     )
