@@ -675,6 +675,12 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
             ),
         )
 
+    fitted_c_rate_max = None
+    if th.get("fitted_c_rate_max") is not None:
+        fitted_c_rate_max = chk.number(
+            th["fitted_c_rate_max"], "thevenin.fitted_c_rate_max", 1.0e-3, 1.0e3
+        )
+
     filters = _parse_filters(chk, root.get("filters", {}))
     levels = _parse_levels(chk, root)
     charge = _parse_charge(chk, root, limits)
@@ -696,6 +702,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
             kinetic=kinetic,
             surface_lag=surface_lag,
             extrapolation=extrapolation,
+            fitted_c_rate_max=fitted_c_rate_max,
         ),
         filters=filters,
         source=source_text,
@@ -766,6 +773,8 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
             "activation_energy_j_per_mol": th.extrapolation.activation_energy_j_per_mol,
             "margin_c": th.extrapolation.margin_c,
         }
+    if th.fitted_c_rate_max is not None:
+        out["thevenin"]["fitted_c_rate_max"] = th.fitted_c_rate_max
     if th.surface_lag is not None:
         out["thevenin"]["surface_lag"] = {
             "gain_soc_per_a": list(th.surface_lag.gain_soc_per_a),

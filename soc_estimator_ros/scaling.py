@@ -241,7 +241,8 @@ def _scale_branch(branch: RcBranch, f: _Factors) -> RcBranch:
 def _scale_thevenin(th: TheveninParams, f: _Factors) -> TheveninParams:
     """R0 and branch resistances (ohm), capacitances (F), saturation and exchange currents (A),
     the kinetic amplitude (V) and the surface lag's gain (SoC per A); the extrapolation's
-    activation energy and margin, the lag's time constants and SoC limits are kept."""
+    activation energy and margin, the lag's time constants and SoC limits and the fitted C-rate
+    (a current per Ah) are kept."""
     kinetic = th.kinetic
     if kinetic is not None:
         kinetic = KineticParams(

@@ -9,7 +9,10 @@ volts wrong there (SLA field run: 12.7 % MAE). The others describe the sensor, t
 the chemistry's relaxation or the filter's mechanics, and stay as the template has them. Per
 entry (the table in docs/identification.md, "Filter tunings"):
 
-* ``hybrid.update_c_rate_max`` (**derived**): the highest C-rate the model was fitted at. With
+* ``hybrid.update_c_rate_max`` (**derived**): the highest C-rate the model was fitted at
+  (written as well, given or not, as the model's ``thevenin.fitted_c_rate_max``: the current
+  envelope of these tests, which the state of power does not go beyond; the gate is a filter
+  tuning that may be moved, the envelope is what the tests covered). With
   rate tests, their highest step (the kinetic fit's range). From the pulses (groups of fitted
   pulses whose rates are within ``RATE_GROUP_RATIO`` of the group's lowest, at SoC >=
   ``limits.soc_min``), the highest rate up to which every group's RMS voltage error, the SoC
@@ -390,7 +393,11 @@ def identified_tunings(
     for s in sources:
         if s.source != "template":
             notes.append(f"filters.{s.block}.{s.key} = {_shown(s.value)} ({s.source}): {s.why}")
-    return replace(battery, filters=_in_template_order(battery.filters, written)), sources
+    # The gate's value from the tests is also the model's current envelope (a fact of these
+    # tests, kept when the gate is given: the state of power reads it).
+    thevenin = replace(battery.thevenin, fitted_c_rate_max=gate)
+    filters = _in_template_order(battery.filters, written)
+    return replace(battery, thevenin=thevenin, filters=filters), sources
 
 
 def _label(res: IdentificationResult) -> str:

@@ -203,6 +203,12 @@ class TheveninParams:
         kinetic: the optional Butler-Volmer overpotential; ``None`` is the papers' model.
         surface_lag: the optional surface-SoC lag of the OCV; ``None`` is the papers' model.
         extrapolation: the resistances' law beyond the identified temperatures.
+        fitted_c_rate_max: the highest C-rate (amperes per Ah of ``capacity_ah``) the model
+            was fitted at and holds at: the current envelope of the identification, as the
+            temperature tables' rows are its temperature envelope (``soc_identify``: the rate
+            tests' top step, else the pulses' highest rate where the linear model holds,
+            ``identification/tuning.py``). ``None``: not recorded (a file written before it).
+            The state of power does not extrapolate beyond it (``runtime/prediction.py``).
     """
 
     r0_ohm: ParamTable
@@ -210,6 +216,7 @@ class TheveninParams:
     kinetic: KineticParams | None = None
     surface_lag: SurfaceLag | None = None
     extrapolation: TemperatureExtrapolation = TemperatureExtrapolation()
+    fitted_c_rate_max: float | None = None
 
 
 class TheveninModel:
@@ -344,6 +351,14 @@ class TheveninModel:
         return out
 
     # -- the identified range ----------------------------------------------------------------
+    @property
+    def fitted_current_max_a(self) -> float:
+        """The highest current (A, magnitude) the model was fitted at
+        (``TheveninParams.fitted_c_rate_max`` times the capacity); ``inf`` when the file
+        records none."""
+        c_rate = self.params.fitted_c_rate_max
+        return math.inf if c_rate is None else c_rate * self.capacity_ah
+
     def extrapolation_c(self, temperature_c: float | None) -> float:
         """How far (degC) ``temperature_c`` lies outside the trusted range: negative below,
         positive above, 0 inside (and for an unknown temperature)."""

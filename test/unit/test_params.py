@@ -93,6 +93,7 @@ BAD = [
     ("thevenin.branches[0].r_ohm", [0.01, 0.01], "thevenin.branches[0].r_ohm", "one per"),
     ("thevenin.soc", [0.2, 0.1, 0.8, 1.0], "thevenin.soc[1]", "strictly increasing"),
     ("thevenin.branches", [], "thevenin.branches", "1 to 3 RC branches"),
+    ("thevenin.fitted_c_rate_max", 0.0, "thevenin.fitted_c_rate_max", ">= 0.001"),
     ("filters.rc_kf_paper.r", -0.8, "filters.rc_kf_paper.r", "> 0"),
     ("filters.rc_kf_paper.q_diag", [1e-5, "x", 0.9], "filters.rc_kf_paper.q_diag[1]", "number"),
     ("limits", [1, 2], "limits", "a mapping"),

@@ -152,6 +152,8 @@ def test_a_pulse_test_alone_gets_the_tuning_of_its_model(chem: str, tmp_module: 
     assert isinstance(gate, float)
     # At most the fitted rate; floored to two digits, so within 10 % of it.
     assert 0.9 * top_c <= gate <= top_c, (gate, top_c)
+    # The same rate is the model's current envelope, which the state of power keeps to.
+    assert battery.thevenin.fitted_c_rate_max == gate
     # What was copied before: the bundled file's gate, its rate tests' top step.
     assert template.filters["hybrid"]["update_c_rate_max"] >= 6.0
     notes = {
@@ -198,10 +200,14 @@ def test_a_given_tuning_is_written_as_given(tmp_path: Path, capsys) -> None:
     out = tmp_path / "sla.yaml"
     pulse = str(bag_path("sla_pulse_test"))
     args = [pulse, "--chemistry", "sla", "--output", str(out)]
-    assert identify_main([*args, "--tuning", "hybrid.r_per_a=0.05", "t2rc_ukf.r=2"]) == 0
+    given = ["hybrid.r_per_a=0.05", "t2rc_ukf.r=2", "hybrid.update_c_rate_max=3"]
+    assert identify_main([*args, "--tuning", *given]) == 0
     report = capsys.readouterr().out
     battery = load_battery_params(out)
     assert battery.filters["hybrid"]["r_per_a"] == 0.05
+    # A given gate is a tuning; the model's envelope stays what the 0.2 C pulses covered.
+    assert battery.filters["hybrid"]["update_c_rate_max"] == 3.0
+    assert battery.thevenin.fitted_c_rate_max == 0.2
     assert battery.filters["t2rc_ukf"] == {"r": 2.0}
     line = next(x for x in report.splitlines() if "filters.hybrid.r_per_a" in x)
     assert "(given)" in line and "from the tests: the code default" in line

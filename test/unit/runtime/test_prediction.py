@@ -100,6 +100,26 @@ def test_state_of_power_is_capped_by_the_current_limits_and_shrinks_with_the_hor
     assert sop_low.max_discharge_current_10s_a < sop.max_discharge_current_10s_a
 
 
+@pytest.mark.parametrize("battery", [SLA, LFP])
+def test_state_of_power_does_not_go_beyond_the_fitted_currents(battery):
+    """A full pack the model says could give the file's 60 A for 10 s: the prediction stops at
+    the highest current the model was fitted at (the file's envelope), exactly; a file that
+    records no envelope keeps the old cap, the file's limit."""
+    model = battery.thevenin_model()
+    envelope_a = model.fitted_current_max_a
+    assert battery.thevenin.fitted_c_rate_max is not None  # soc_identify writes it
+    assert envelope_a == battery.thevenin.fitted_c_rate_max * battery.capacity_ah
+    assert envelope_a < battery.limits.current_max_discharge_a  # else nothing is tested
+    _, _, state = loaded_state(model, 0.95, 0.0, 0.0)
+    unrecorded = replace(battery.thevenin, fitted_c_rate_max=None)
+    free = state_of_power(battery.thevenin_model(unrecorded), battery.limits, state)
+    assert free.max_discharge_current_10s_a == battery.limits.current_max_discharge_a
+    sop = state_of_power(model, battery.limits, state)
+    assert sop.max_discharge_current_10s_a == envelope_a
+    assert sop.max_discharge_current_60s_a <= envelope_a
+    assert sop.max_charge_current_10s_a <= min(envelope_a, battery.limits.current_max_charge_a)
+
+
 def test_a_pack_already_below_the_limit_can_deliver_nothing():
     model = SLA.thevenin_model()
     state = PackState(soc=0.05, soc_std=0.01, branch_v=(0.5, 0.5))
