@@ -20,7 +20,14 @@ papers report:
    knee, where the voltage tells it, before a light-load update with a wide prior can move it
    onto the plateau), else the pulses' rate where the linear model holds (0.2 C from a pulse
    test alone: with the 6 C of a file with the kinetic drop, the hybrid on such an SLA file read
-   the bursts through a model 1-2 V wrong, 14-27 % MAE; with 0.2 C, 0.5-1.5 %).
+   the bursts through a model 1-2 V wrong, 14-27 % MAE; with 0.2 C, 0.5-1.5 %). Charges are
+   gated the same way, and also above ``update_charge_c_rate_max`` (beyond the rest band;
+   ``inf``, the default: the discharge gate serves both): the identification fits
+   discharges, so a model's charge voltage is its discharge fit run backwards. ``soc_identify``
+   derives the charge gate where the tests hold charges (``identification/tuning.py``); the
+   bundled LFP file gives 0, chosen on the corpus' tuning half (its dock charges at 0.7 C
+   read 60-100 mV below the model's, which the model-error states took up while the SoC
+   drifted; docs/accuracy.md).
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
    (seed 000 Fig. 11b: the Thevenin model's voltage error is larger than the RC model's under
    load). ``R = r + (r_per_a I)^2``, so heavy load pulls the SoC less than a rest does.
@@ -118,6 +125,9 @@ class Hybrid(T2rcUkf):
         "r": 0.05,  # V^2: (0.22 V)^2 at light load, model mismatch rather than ADC noise
         "r_per_a": 2.0e-3,  # V/A: extra measurement std per ampere of load
         "update_c_rate_max": 0.25,  # C: no voltage update above this load
+        # C: nor above this charge current (beyond the rest band); inf: the discharge gate
+        # serves both directions (item 1).
+        "update_charge_c_rate_max": math.inf,
         "rest_current_a": 0.1,  # A: |low-passed current| at or below this is a rest
         "rest_filter_tau_s": 5.0,  # s: low-pass on the current before the rest test
         "rest_min_s": 1200.0,  # s: lead-acid still relaxes tens of mV 20 min after a load
@@ -375,9 +385,21 @@ class Hybrid(T2rcUkf):
             var *= 1.0 + (d / self.tuning["extrapolation_scale_c"]) ** 2
         return var
 
+    def _outside_update_currents(self, current_a: float) -> bool:
+        """Item 1: a current above ``update_c_rate_max``, or a charge above
+        ``update_charge_c_rate_max`` and beyond the rest band (``2 rest_current_a``, the
+        rest sample test of :meth:`_measurement_variance`: a sensor's noise around zero is not
+        a charge), both in C of the capacity."""
+        t = self.tuning
+        gate_c = float(t["update_c_rate_max"])
+        if current_a >= 0.0:
+            return current_a > gate_c * self.capacity_ah
+        charge_gate_a = min(float(t["update_charge_c_rate_max"]), gate_c) * self.capacity_ah
+        return -current_a > max(charge_gate_a, 2.0 * t["rest_current_a"])
+
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
-        if abs(current_a) > self.tuning["update_c_rate_max"] * self.capacity_ah:
+        if self._outside_update_currents(current_a):
             # The first sample too: a start under load must not pull a wide prior P0.
             self.at_rest = False
             v_pred = float(self._hx(self.kf.x[np.newaxis, :], current_a, temp_c)[0, 0])

@@ -22,6 +22,13 @@ entry (the table in docs/identification.md, "Filter tunings"):
   the NCR18650PF's 2RC holds to 2 C at 25.8 degC, to 0.5 C at 0.6 degC). The higher of the
   pulses' and the rate tests', floored to two significant digits (within the fitted range;
   the current sensor's gain error makes a third digit noise).
+* ``hybrid.update_charge_c_rate_max`` (**derived**): the same for charge currents. The
+  identification fits discharges; a charge is only checked: the model's RMS error over the
+  charging samples of the reference temperature's tests, the SoC imposed, in the C-rate bins
+  of ``r_per_a`` below; the highest bin's mean rate up to which every bin stays within
+  ``GATE_ERROR_FACTOR`` times ``bias_std_v``, floored to two digits (0: no voltage read while
+  charging beyond the rest band); the code default (the discharge gate serves both) when the
+  tests hold no charge, as the bundled packs' do not.
 * ``hybrid.r_per_a`` (**derived**, else the code default): under load the hybrid assumes an
   error of variance ``r + bias_std_v^2 + (r_per_a I)^2``. The model's RMS error ``e`` is taken in
   octave bins of the C-rate (edges ``BIN_LOW_C`` 2^k; the bins up to the gate's, each with
@@ -41,6 +48,7 @@ says what the tests alone give for it.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -71,6 +79,7 @@ MIN_BIN_S = 10.0
 MODEL_SPECIFIC: Mapping[str, Mapping[str, str]] = {
     "hybrid": {
         "update_c_rate_max": "derived",
+        "update_charge_c_rate_max": "derived",
         "r_per_a": "derived",
         "bias_std_v": "measured",
         "bias_tau_s": "default",
@@ -233,22 +242,48 @@ def update_gate(
 
 
 def current_bin_errors(
-    sims: Sequence[Simulated], capacity_ah: float, soc_min: float, gate_c: float
+    sims: Sequence[Simulated],
+    capacity_ah: float,
+    soc_min: float,
+    gate_c: float,
+    charge_only: bool = False,
 ) -> list[RateError]:
     """The model's error per octave bin of the C-rate (``BIN_LOW_C`` 2^k), over every test,
-    for the bins up to the one holding ``gate_c``, with ``MIN_BIN_S`` or more."""
+    for the bins up to the one holding ``gate_c``, with ``MIN_BIN_S`` or more; of the charging
+    samples alone with ``charge_only``."""
     top = math.floor(math.log2(gate_c / BIN_LOW_C)) if gate_c >= BIN_LOW_C else -1
     out = []
     for k in range(top + 1):
         lo, hi = BIN_LOW_C * 2.0**k, BIN_LOW_C * 2.0 ** (k + 1)
         parts = []
         for sim in sims:
-            c = np.abs(sim.test.current_a) / capacity_ah
+            current = -sim.test.current_a if charge_only else np.abs(sim.test.current_a)
+            c = current / capacity_ah
             parts.append((sim, np.flatnonzero((c >= lo) & (c < hi))))
         err = _rate_error(parts, soc_min, math.nan)
         if err is not None and err.seconds >= MIN_BIN_S:
             out.append(replace(err, rate_c=err.current_a / capacity_ah))
     return out
+
+
+def charge_gate(
+    sims: Sequence[Simulated], capacity_ah: float, soc_min: float, bias_std_v: float
+) -> tuple[float | None, str]:
+    """``update_charge_c_rate_max`` and why (module docstring): the charging samples' model
+    error in the C-rate bins of ``r_per_a``; the highest bin's mean rate up to which every
+    bin stays within ``GATE_ERROR_FACTOR`` times ``bias_std_v``, floored to two digits; 0 when
+    even the lowest bin misses; None (the code default) when the tests hold no charge."""
+    top_c = max(float(np.max(-s.test.current_a, initial=0.0)) for s in sims) / capacity_ah
+    bins = current_bin_errors(sims, capacity_ah, soc_min, top_c, charge_only=True)
+    if not bins:
+        return None, f"no charge of {MIN_BIN_S:g} s or more above {BIN_LOW_C:g} C in the tests"
+    limit_v = GATE_ERROR_FACTOR * bias_std_v
+    table = ", ".join(f"{b.rate_c:.3g} C {1000 * b.rms_v:.1f} mV" for b in bins)
+    passing = [b.rate_c for b in itertools.takewhile(lambda b: b.rms_v <= limit_v, bins)]
+    why = f"charging samples, RMS error per C-rate bin within {1000 * limit_v:.1f} mV: {table}"
+    if not passing:
+        return 0.0, why + ": none"
+    return floor_2_digits(passing[-1]), why + f": up to {passing[-1]:.3g} C"
 
 
 def current_dependent_error(
@@ -352,8 +387,10 @@ def identified_tunings(
         bins = current_bin_errors(sims, capacity, soc_min, gate)
         r_per_a, r_why = current_dependent_error(bins, float(hybrid["r"]), bias_v)
 
+    charge_c, charge_why = charge_gate(sims, capacity, soc_min, bias_v)
     derived: list[tuple[str, Any, str, str]] = [
         ("update_c_rate_max", gate, "derived", gate_why),
+        ("update_charge_c_rate_max", charge_c, "derived", charge_why),
         ("r_per_a", r_per_a, "derived", r_why),
         (
             "bias_std_v",

@@ -12,11 +12,13 @@ Since the guard (issue 24) the hybrid is compared with its guard off (``model_pr
 its UKF is what it was; what the guard publishes is tested in test_guard.py. Since its
 resistance-error state (issue 24, hybrid item 8) the state is off too
 (``resistance_std_frac: 0``): the filter without it is the one before, and the state itself is
-tested in test/unit/estimators/test_estimators.py.
+tested in test/unit/estimators/test_estimators.py; so is the charge gate (its default, inf,
+is the gate before).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from functools import cache
 
@@ -62,7 +64,12 @@ def test_every_estimator_gives_what_it_gave_before(bag: str) -> None:
             # its filter, and the resistance state (item 8) is an addition to it: with both off
             # (model_prior 1, resistance_std_frac 0) it gives what it gave before.
             filters = dict(battery.filters)
-            off = {"model_prior": 1.0, "resistance_std_frac": 0.0}
+            # So is the charge gate (item 1 on charge: the LFP file's 0): inf is the old gate.
+            off = {
+                "model_prior": 1.0,
+                "resistance_std_frac": 0.0,
+                "update_charge_c_rate_max": math.inf,
+            }
             filters["hybrid"] = {**filters.get("hybrid", {}), **off}
             b = replace(battery, filters=filters)
         result = replay_estimator(series, b, name, "ref", bag)

@@ -497,6 +497,37 @@ def test_hybrid_without_the_resistance_state_is_the_filter_with_it_at_zero_varia
     assert a.soc == pytest.approx(b.soc, abs=1e-9)
 
 
+def test_hybrid_charge_gate_reads_no_voltage_while_charging_above_it() -> None:
+    """Item 1 of hybrid.py on charge: with ``update_charge_c_rate_max: 0`` (the LFP file's) a
+    charge beyond the rest band only propagates (the SoC counts the charge, the voltage is not
+    read); a discharge at the same light current and a rest whose sensor noise reads slightly
+    negative are read; the default (inf) reads a charge up to the discharge gate, as before."""
+    assert Hybrid.default_tuning["update_charge_c_rate_max"] == math.inf
+    closed = {**LFP.filters["hybrid"], "update_charge_c_rate_max": 0.0}
+    est = make_estimator("hybrid", LFP, 0.5, 0.05, tuning=closed)
+    rest_band_a = 2.0 * est.tuning["rest_current_a"]
+    q_ah = est.capacity_ah
+    steps = [(1.0, -0.5 * q_ah), (2.0, -1.2 * rest_band_a), (3.0, 0.5 * q_ah)]
+    steps.append((4.0, -0.5 * rest_band_a))  # a rest read through a noisy sensor
+    updated = [est.step(t, i, 13.2).updated for t, i in steps]
+    assert updated == [False, False, True, True]
+    est.step(5.0, -3.0, 13.6)
+    soc_before = est.soc
+    for t in range(6, 16):  # 10 s at -3 A, held sample to sample: counted, never read
+        assert not est.step(float(t), -3.0, 13.6).updated
+    counted = LFP.coulomb_efficiency_charge * 3.0 * 10.0 / 3600.0 / q_ah
+    # The filter's SoC and the guard's count move by the same charge, so the published mixture
+    # does too; what is left is the weights' change with the variances (measured 1e-7).
+    assert est.soc - soc_before == pytest.approx(counted, rel=1e-3)
+    for charge_c in (1.0, math.inf):
+        tuning = {**LFP.filters["hybrid"], "update_charge_c_rate_max": charge_c}
+        opened = make_estimator("hybrid", LFP, 0.5, 0.05, tuning=tuning)
+        assert [opened.step(t, i, 13.2).updated for t, i in steps] == [True, True, True, True]
+        # Above the discharge gate (LFP: 6.2 C) a charge is not read, whatever its own gate.
+        gate_a = LFP.filters["hybrid"]["update_c_rate_max"] * q_ah
+        assert not opened.step(5.0, -1.1 * gate_a, 13.9).updated
+
+
 @pytest.mark.parametrize("name", ["t2rc_ukf", "hybrid"])
 def test_sigma_points_with_a_negative_covariance_weight_are_refused(name: str) -> None:
     """A negative centre weight lets the prior lose positive definiteness: measured, the

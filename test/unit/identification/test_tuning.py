@@ -9,6 +9,7 @@ is volts wrong there (measured by a user: SLA 12.7 % MAE).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from functools import cache
 from pathlib import Path
 
@@ -21,7 +22,10 @@ from soc_estimator_ros.evaluation import accuracy, run_estimator
 from soc_estimator_ros.identification.cli import main as identify_main
 from soc_estimator_ros.identification.segment import IdentificationError
 from soc_estimator_ros.identification.tuning import (
+    MODEL_SPECIFIC,
     RateError,
+    Simulated,
+    charge_gate,
     current_dependent_error,
     floor_2_digits,
     parse_given,
@@ -34,6 +38,28 @@ TEMPLATES = {
     "sla": REPO_ROOT / "config" / "sla_12v5ah.yaml",
     "lfp": REPO_ROOT / "config" / "lfp_12v6ah.yaml",
 }
+
+
+def charged(currents_a, errors_v) -> Simulated:
+    """A test at 1 Hz whose blocks of 60 s hold each current, the model off by each error."""
+    current = np.repeat(np.asarray(currents_a, dtype=float), 60)
+    error = np.repeat(np.asarray(errors_v, dtype=float), 60)
+    n = current.size
+    test = replace(read_battery_bag(bag_path("sla_pulse_test")), t_s=np.arange(n, dtype=float))
+    test = replace(test, current_a=current, voltage_v=12.5 + error, stamp_ns=np.arange(n))
+    return Simulated(test, np.full(n, 0.8), np.full(n, 12.5))
+
+
+def test_the_charge_gate_is_derived_from_the_tests_charges_only() -> None:
+    """5 Ah: charges at 0.5, 1 and 2 A (0.1, 0.2, 0.4 C; bins 0.075, 0.15, 0.3 C) with the model
+    off by 2, 4 and 30 mV against a 2 x 10 mV limit: read up to the 1-A bin's mean rate; with
+    every bin off, 0; a test with discharges only says nothing (None: the code default)."""
+    sims = [charged([3.0, -0.5, -1.0, -2.0, 0.0], [0.0, 0.002, 0.004, 0.030, 0.0])]
+    gate, why = charge_gate(sims, 5.0, 0.2, 0.010)
+    assert gate == 0.2 and "up to 0.2 C" in why
+    worse = [charged([-0.5, -1.0], [0.030, 0.030])]
+    assert charge_gate(worse, 5.0, 0.2, 0.010)[0] == 0.0
+    assert charge_gate([charged([3.0, 0.0], [0.05, 0.0])], 5.0, 0.2, 0.010)[0] is None
 
 
 def rate(rate_c: float, rms_mv: float, capacity_ah: float = 5.0) -> RateError:
@@ -176,7 +202,7 @@ def test_a_pulse_test_alone_gets_the_tuning_of_its_model(chem: str, tmp_module: 
     kept = next(line for line in report.splitlines() if "filters from the template" in line)
     for block, entries in template.filters.items():
         for key, value in entries.items():
-            if key not in ("update_c_rate_max", "r_per_a", "bias_std_v"):
+            if key not in MODEL_SPECIFIC.get(block, {}):  # the gates, r_per_a, the bias std
                 assert battery.filters[block][key] == value and f"{block}.{key}" in kept
     make_estimator("hybrid", battery, 1.0)  # the tuning is one the hybrid takes
 
