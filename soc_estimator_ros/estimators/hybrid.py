@@ -26,8 +26,8 @@ papers report:
    discharges, so a model's charge voltage is its discharge fit run backwards. ``soc_identify``
    derives the charge gate where the tests hold charges (``identification/tuning.py``); the
    bundled LFP file gives 0, chosen on the corpus' tuning half (its dock charges at 0.7 C
-   read 60-100 mV below the model's, which the model-error states took up while the SoC
-   drifted; docs/accuracy.md).
+   read up to 100 mV below the model's, which the model-error states took up only in part:
+   the SoC ran 1-1.5 points high through the CC phase; docs/accuracy.md, "Charging").
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
    (seed 000 Fig. 11b: the Thevenin model's voltage error is larger than the RC model's under
    load). ``R = r + (r_per_a I)^2``, so heavy load pulls the SoC less than a rest does.

@@ -10,7 +10,10 @@ volatile) reads every message as Nav2 does:
 * the docking plugins (``SimpleChargingDock``): charging while ``current > 0.5 A``.
 
 **The mission is synthetic and only fit for this contract test, not for any accuracy claim.**
-The bundled bags have no charge, so it is built from the end of a bundled field run
+It needs a discharge past the critical level, a dock, a charge to FULL with a float and a
+drive off in one recording; the corpus missions' PyBaMM dock charges start at 22-40 %
+SoC, above the LFP file's 20 % critical level, where IsBatteryLow never fires, so it is built
+from the end of a bundled field run
 (``lfp_field_run_2_partial``, the last 25 minutes, decimated to the 1 Hz a slow bridge
 publishes), followed by segments made with the package's own Thevenin model (the LFP file's):
 a short drive to the dock, a rest, a CC-CV charge (6 A to 14.4 V, then the current that holds
