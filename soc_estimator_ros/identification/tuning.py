@@ -201,14 +201,17 @@ def pulse_gate(groups: Sequence[RateError], limit_v: float) -> tuple[float | Non
     if not groups:
         return None, "no fitted pulse at SoC >= limits.soc_min"
     rates = ", ".join(f"{g.rate_c:.3g} C {1000 * g.rms_v:.1f} mV" for g in groups)
-    passing = []
-    for g in groups:
-        if g.rms_v > limit_v:
-            break
-        passing.append(g)
-    if passing:
-        return passing[-1].rate_c, f"{rates}: up to {passing[-1].rate_c:.3g} C"
+    top = highest_within(groups, limit_v)
+    if top is not None:
+        return top, f"{rates}: up to {top:.3g} C"
     return groups[0].rate_c, f"{rates}: none, the lowest rate {groups[0].rate_c:.3g} C used"
+
+
+def highest_within(groups: Sequence[RateError], limit_v: float) -> float | None:
+    """The highest rate of ``groups`` (in increasing rate) up to which every group's RMS error
+    stays within ``limit_v``; None when the lowest does not."""
+    passing = list(itertools.takewhile(lambda g: g.rms_v <= limit_v, groups))
+    return passing[-1].rate_c if passing else None
 
 
 def update_gate(
@@ -279,11 +282,11 @@ def charge_gate(
         return None, f"no charge of {MIN_BIN_S:g} s or more above {BIN_LOW_C:g} C in the tests"
     limit_v = GATE_ERROR_FACTOR * bias_std_v
     table = ", ".join(f"{b.rate_c:.3g} C {1000 * b.rms_v:.1f} mV" for b in bins)
-    passing = [b.rate_c for b in itertools.takewhile(lambda b: b.rms_v <= limit_v, bins)]
+    top = highest_within(bins, limit_v)
     why = f"charging samples, RMS error per C-rate bin within {1000 * limit_v:.1f} mV: {table}"
-    if not passing:
+    if top is None:
         return 0.0, why + ": none"
-    return floor_2_digits(passing[-1]), why + f": up to {passing[-1]:.3g} C"
+    return floor_2_digits(top), why + f": up to {top:.3g} C"
 
 
 def current_dependent_error(
