@@ -367,12 +367,16 @@ class Hybrid(T2rcUkf):
             self._inflate_soc_variance(self.tuning["q_inflate"] * dt_s * ratio)
         self._dt_last = dt_s
 
+    @property
+    def _rest_band_a(self) -> float:
+        """A single sample within this of zero (A) may be a rest: twice the low-passed
+        current's threshold, for a noisy sensor's scatter around it (item 3; item 1's charge
+        gate leaves it to the rest test too)."""
+        return 2.0 * float(self.tuning["rest_current_a"])
+
     def _measurement_variance(self, current_a: float) -> float:
         # The sample itself must look like rest too (a load step is seen before the low-pass).
-        at_rest = (
-            self.rest_s >= self.tuning["rest_min_s"]
-            and abs(current_a) <= 2.0 * self.tuning["rest_current_a"]
-        )
+        at_rest = self.rest_s >= self.tuning["rest_min_s"] and abs(current_a) <= self._rest_band_a
         self.at_rest = at_rest
         if at_rest:
             self.ocv_corrections += 1
@@ -387,15 +391,14 @@ class Hybrid(T2rcUkf):
 
     def _outside_update_currents(self, current_a: float) -> bool:
         """Item 1: a current above ``update_c_rate_max``, or a charge above
-        ``update_charge_c_rate_max`` and beyond the rest band (``2 rest_current_a``, the
-        rest sample test of :meth:`_measurement_variance`: a sensor's noise around zero is not
-        a charge), both in C of the capacity."""
+        ``update_charge_c_rate_max`` and beyond the rest band (:attr:`_rest_band_a`: a
+        sensor's noise around zero is not a charge), both in C of the capacity."""
         t = self.tuning
         gate_c = float(t["update_c_rate_max"])
         if current_a >= 0.0:
             return current_a > gate_c * self.capacity_ah
         charge_gate_a = min(float(t["update_charge_c_rate_max"]), gate_c) * self.capacity_ah
-        return -current_a > max(charge_gate_a, 2.0 * t["rest_current_a"])
+        return -current_a > max(charge_gate_a, self._rest_band_a)
 
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
