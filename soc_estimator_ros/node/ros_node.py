@@ -36,6 +36,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -72,6 +73,7 @@ from ..tracking.persistence import (
 )
 from ..units import NS_PER_S, CurrentSign, core_current_from, core_current_from_ros, stamp_to_ns
 from .diagnostics import Diagnostics
+from .housekeeping import Housekeeping
 from .parameters import (
     KNOWN_ESTIMATORS,
     LEVEL_PARAMETERS,
@@ -87,6 +89,8 @@ from .ros_messages import battery_state_msg, estimate_msg, runtime_msg
 
 #: How often (s) each throttled event (a rejection reason, ...) may be logged.
 REJECTION_LOG_PERIOD_S = 5.0
+#: Period (s) of the ``/diagnostics`` status.
+DIAGNOSTICS_PERIOD_S = 1.0
 #: Seconds a RuntimeError out of spin waits for a signal's shutdown before it is a fault.
 SHUTDOWN_GRACE_S = 2.0
 _CURRENT_SIGNS = {
@@ -149,22 +153,30 @@ class SocEstimatorNode(Node):
         inputs = self._create_topics()
         self.create_service(Trigger, "~/reset_soc_from_ocv", self._on_reset_from_ocv)
         self.create_service(Trigger, "~/reset_health", self._on_reset_health)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(1.0, self._publish_diagnostics, clock=steady)
         self._publish_rate_hz: float = p("publish_rate_hz")
         if self._publish_rate_hz > 0.0:
             self.create_timer(1.0 / self._publish_rate_hz, self._on_publish_timer)
-        # Stale input: keep battery/soc coming (steady clock: the silence is wall time).
-        stale_period = 1.0 / self._publish_rate_hz if self._publish_rate_hz > 0.0 else 1.0
-        self.create_timer(stale_period, self._on_stale_timer, clock=steady)
-        self._save_timer = None
+        self._save_period_s: float = 0.0
         if self.state_file is not None:
             for tmp in remove_stale_temp_files(self.state_file):
                 self.get_logger().warning(f"removed a temporary file left by a kill: {tmp}")
-            if p("save_period_s") > 0.0:
-                self._save_timer = self.create_timer(
-                    p("save_period_s"), self.save_now, clock=steady
-                )
+            self._save_period_s = p("save_period_s")
+        # One steady-clock timer for the stale output, the diagnostics and the saves (the
+        # silence is wall time). Every timer is rebuilt into the executor's wait set on every
+        # spin, so one timer instead of three is less rclpy work per input message
+        # (docs/benchmarks.md, "Where the time goes in the node").
+        stale_period_s = 1.0 / self._publish_rate_hz if self._publish_rate_hz > 0.0 else 1.0
+        self._housekeeping = Housekeeping(time.monotonic())
+        self._housekeeping.every(stale_period_s, self._publish_stale)
+        self._housekeeping.every(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
+        if self._save_period_s > 0.0:
+            self._housekeeping.every(self._save_period_s, self.save_now)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(
+            self._housekeeping.tick_s,
+            lambda: self._housekeeping.run(time.monotonic()),
+            clock=steady,
+        )
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(
@@ -257,10 +269,18 @@ class SocEstimatorNode(Node):
         """Publishers and subscriptions; returns a description of the inputs for the log."""
         p = self._param
         out_qos = self._qos(reliable=True)
-        self._soc_pub = self.create_publisher(BatteryState, p("output_topic"), out_qos)
-        self._est_pub = self.create_publisher(Float64MultiArray, p("estimate_topic"), out_qos)
-        self._runtime_pub = self.create_publisher(Float64MultiArray, p("runtime_topic"), out_qos)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # No QoS event handlers on the outputs: each is a waitable rebuilt into the executor's
+        # wait set on every spin, and a subscriber whose QoS cannot match is reported by its
+        # own node (rclpy's default subscription handler) anyway.
+        quiet = PublisherEventCallbacks(use_default_callbacks=False)
+
+        def publisher(msg_type: Any, topic: str, qos: QoSProfile | int) -> Any:
+            return self.create_publisher(msg_type, topic, qos, event_callbacks=quiet)
+
+        self._soc_pub = publisher(BatteryState, p("output_topic"), out_qos)
+        self._est_pub = publisher(Float64MultiArray, p("estimate_topic"), out_qos)
+        self._runtime_pub = publisher(Float64MultiArray, p("runtime_topic"), out_qos)
+        self._diag_pub = publisher(DiagnosticArray, "/diagnostics", 10)
         reliability = p("input_reliability")
         if reliability not in ("best_effort", "reliable"):
             raise NodeConfigError(
@@ -431,7 +451,7 @@ class SocEstimatorNode(Node):
             return None
         return now_steady_s - last
 
-    def _on_stale_timer(self) -> None:
+    def _publish_stale(self) -> None:
         """While the input is stale: ``battery/soc`` with the last SoC, status UNKNOWN."""
         with self._lock:
             if self.stale_for(time.monotonic()) is None:
