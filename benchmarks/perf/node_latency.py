@@ -137,12 +137,15 @@ def main() -> int:
 
 
 def versus_relay(args: argparse.Namespace, env: dict[str, str]) -> int:
-    """The relay and the node alternately (so a slow spell of the machine hits both), then the
-    ratios of the sums over the rounds."""
+    """The relay and the node alternately, in ABBA order (so a slow spell of the machine hits
+    both), then the ratios of the sums over the rounds."""
     relay: list[Run] = []
     node: list[Run] = []
-    for _ in range(args.rounds):
-        for baseline, runs in ((True, relay), (False, node)):
+    for k in range(args.rounds):
+        # Relay first in even rounds, the node first in odd ones (ABBA): a drift of the
+        # machine or of this process over the invocation does not favour either.
+        order = ((True, relay), (False, node)) if k % 2 == 0 else ((False, node), (True, relay))
+        for baseline, runs in order:
             args.baseline = baseline
             run = measure(args, env, 0)
             if run is None:
