@@ -156,11 +156,11 @@ class SocEstimatorNode(Node):
         self._publish_rate_hz: float = p("publish_rate_hz")
         if self._publish_rate_hz > 0.0:
             self.create_timer(1.0 / self._publish_rate_hz, self._on_publish_timer)
-        self._save_period_s: float = 0.0
+        save_period_s: float = 0.0
         if self.state_file is not None:
             for tmp in remove_stale_temp_files(self.state_file):
                 self.get_logger().warning(f"removed a temporary file left by a kill: {tmp}")
-            self._save_period_s = p("save_period_s")
+            save_period_s = p("save_period_s")
         # One steady-clock timer for the stale output, the diagnostics and the saves (the
         # silence is wall time). Every timer is rebuilt into the executor's wait set on every
         # spin, so one timer instead of three is less rclpy work per input message
@@ -169,8 +169,8 @@ class SocEstimatorNode(Node):
         self._housekeeping = Housekeeping(time.monotonic())
         self._housekeeping.every(stale_period_s, self._publish_stale)
         self._housekeeping.every(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
-        if self._save_period_s > 0.0:
-            self._housekeeping.every(self._save_period_s, self.save_now)
+        if save_period_s > 0.0:
+            self._housekeeping.every(save_period_s, self.save_now)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(
             self._housekeeping.tick_s,

@@ -83,7 +83,13 @@ def cc_cv(charge_a=3.0, seconds_cc=120.0, hold_s=70.0):
 
 def test_full_recalibrates_the_soc_and_says_so():
     tr = tracker(LFP, soc=0.7)
-    results = feed(tr, cc_cv())
+    results, guarded_at_full = [], None
+    for k, sample in enumerate(cc_cv()):
+        results += feed(tr, [sample], t0_ns=k * S // 10)
+        if guarded_at_full is None and any(
+            "charge complete" in e.message for e in results[-1].events
+        ):
+            guarded_at_full = tr.estimator.guarded()
     done = [
         (k, e) for k, r in enumerate(results) for e in r.events if "charge complete" in e.message
     ]
@@ -91,12 +97,15 @@ def test_full_recalibrates_the_soc_and_says_so():
     full_at, event = done[0]
     assert event.level is Level.INFO and "recalibrated" in event.message
     est = results[full_at].estimate
-    # The hybrid publishes the guard's mixture (estimators/guard.py) of its UKF, whose variance
-    # is floored at the file's model_soc_std (the model's persistent error), and of the count,
-    # anchored at full with FULL_SOC_STD: both at 100 %, so sigma lies between the two.
-    floor = LFP.filters["hybrid"].get("model_soc_std", 0.0)
     assert est.soc == 1.0
-    assert FULL_SOC_STD - 1e-12 <= est.soc_std <= max(FULL_SOC_STD, floor) + 1e-12
+    # The hybrid publishes the guard's mixture (estimators/guard.py): its UKF and its count both
+    # recalibrated to 1.0 with FULL_SOC_STD, the UKF's variance floored at the file's
+    # model_soc_std (the model's persistent error), so d = 0 and the variance is
+    # w floor^2 + (1 - w) FULL_SOC_STD^2 with the guard's weight w (rounding only).
+    floor = max(FULL_SOC_STD, LFP.filters["hybrid"].get("model_soc_std", 0.0))
+    w = guarded_at_full.model_weight
+    assert est.soc_var == guarded_at_full.soc_var
+    assert est.soc_var == pytest.approx(w * floor**2 + (1.0 - w) * FULL_SOC_STD**2, rel=1e-12)
     assert tr.runtime.full and tr.runtime.charge.phase is ChargePhase.FULL
     assert tr.soc == pytest.approx(1.0, abs=1e-3)  # the estimator itself, on the next samples
     # During the charge the time to full was predicted, and it is 0 once full.
