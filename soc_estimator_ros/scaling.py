@@ -99,6 +99,9 @@ TUNING_UNITS: dict[str, Unit | str] = {
     # fractions of the file's own 5-s pulse resistance, which the scaling carries
     "resistance_std_frac": NONE,
     "resistance_drift_frac_per_h": NONE,
+    # item 9: SoC fractions and a count of std
+    "ocv_soc_resolution_max": NONE,
+    "ocv_contradiction_sigma": NONE,
 }
 
 #: The unit of each field of the file's sections that carries one (the others are SoC,

@@ -99,6 +99,24 @@ papers report:
    out (the state vector is then item 5's). The health monitor's ``R_0`` factor
    (``health/resistance.py``, applied by ``set_health``) scales the file's table; this state
    carries what is left, sample by sample.
+9. **No rest reading where the OCV cannot tell the SoC.** Where the OCV is flat (LFP's
+   plateaus, a third of its curve), the model's persistent error ``bias_std_v`` reads as more
+   than ``ocv_soc_resolution_max`` of SoC (``bias_std_v / |dOCV/dSoC|`` at the estimate; 0.06:
+   the LFP file's 20 mV over a slope below 0.34 V per unit of SoC). Item 3's rest reading
+   there, taken every sample as if its error were white, narrows the SoC's std to tenths of a
+   point on millivolts that are the OCV table's error and moves the SoC by them
+   (``lfp_tuning_1024``: a rest at 85 % took the UKF's std to 0.4 % and its SoC 3.4 points
+   low; docs/accuracy.md, "Where the OCV is flat"). So where the OCV is flat a rest sample
+   only propagates, as one above the current gate does, unless the voltage contradicts the
+   estimate: the innovation at the mean, averaged over ``nis_tau_s``, beyond
+   ``ocv_contradiction_sigma`` times its std if the estimate held (the model's error and the
+   averaged white noise); a rest of a pack whose SoC is off the plateau is then read as
+   before. Under load the item does not gate (tried: it kept a wide start prior from reaching
+   a knee, but kept the std wide for the first steep reading through a cold model too:
+   docs/accuracy.md). SLA and the NCR18650PF are nowhere flat by the rule (their slopes read
+   their model errors as a point at most): their filters are the ones without it, to the
+   bit. ``ocv_soc_resolution_max: 0`` turns it off. Chosen on the LFP tuning half of the
+   corpus and the bundled field runs.
 """
 
 from __future__ import annotations
@@ -159,6 +177,12 @@ class Hybrid(T2rcUkf):
         # drift per sqrt(hour) what a mission's warming and ageing move it.
         "resistance_std_frac": 0.087,
         "resistance_drift_frac_per_h": 0.02,
+        # Item 9, where the OCV cannot tell the SoC: chosen on the LFP tuning half and the
+        # bundled field runs (docs/accuracy.md, "Where the OCV is flat"); SLA's and the
+        # NCR18650PF's curves would be flat only for model errors above 74 / 28 mV (theirs:
+        # 12.5 / 7.3 mV).
+        "ocv_soc_resolution_max": 0.06,  # SoC: bias_std_v over the OCV slope above this: flat
+        "ocv_contradiction_sigma": 2.0,  # mean innovation beyond this many std: read
     }
     # Without the resistance state (``resistance_std_frac: 0``) ``_init_state`` drops its name.
     state_names: tuple[str, ...] = (*T2rcUkf.state_names, "bias_v", "r_delta_ohm")
@@ -349,6 +373,8 @@ class Hybrid(T2rcUkf):
         self.nis_avg = 1.0
         self.inflating = False
         self.ocv_corrections = 0
+        self._flat_innov_v = 0.0  # item 9: the innovation at the mean, averaged
+        self._flat_r_v2 = 0.0  # and the white measurement variance, averaged alike
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
         super()._predict(dt_s, current_a, next_current_a, temp_c)
@@ -374,9 +400,13 @@ class Hybrid(T2rcUkf):
         gate leaves it to the rest test too)."""
         return 2.0 * float(self.tuning["rest_current_a"])
 
+    def _rest_reading(self, current_a: float) -> bool:
+        """Item 3: ``rest_min_s`` of rest, and the sample itself looks like rest too (a load
+        step is seen before the low-pass)."""
+        return self.rest_s >= self.tuning["rest_min_s"] and abs(current_a) <= self._rest_band_a
+
     def _measurement_variance(self, current_a: float) -> float:
-        # The sample itself must look like rest too (a load step is seen before the low-pass).
-        at_rest = self.rest_s >= self.tuning["rest_min_s"] and abs(current_a) <= self._rest_band_a
+        at_rest = self._rest_reading(current_a)
         self.at_rest = at_rest
         if at_rest:
             self.ocv_corrections += 1
@@ -400,9 +430,41 @@ class Hybrid(T2rcUkf):
         charge_gate_a = min(float(t["update_charge_c_rate_max"]), gate_c) * self.capacity_ah
         return -current_a > max(charge_gate_a, self._rest_band_a)
 
+    def _ocv_cannot_tell(self, current_a: float, voltage_v: float, temp_c) -> bool:
+        """Item 9: a rest reading where the OCV is flat at the SoC estimate (the model's error
+        ``bias_std_v`` reads as more than ``ocv_soc_resolution_max`` of SoC there), unless the
+        voltage contradicts the estimate (the innovation at the mean, averaged over
+        ``nis_tau_s``, beyond ``ocv_contradiction_sigma`` times its std)."""
+        t = self.tuning
+        limit = float(t["ocv_soc_resolution_max"])
+        if not (limit > 0.0 and self._rest_reading(current_a)):
+            self._flat_innov_v = self._flat_r_v2 = 0.0
+            return False
+        x = self.kf.x
+        slope = abs(self.model.ocv.slope(float(x[self.soc_index])))
+        bias_std_v = float(t["bias_std_v"])
+        if bias_std_v <= limit * slope:
+            self._flat_innov_v = self._flat_r_v2 = 0.0
+            return False
+        # The innovation at the mean, as the gated path predicts it (with the bias).
+        self.at_rest = False
+        y = voltage_v - float(self._hx(x[np.newaxis, :], current_a, temp_c)[0, 0])
+        dt = getattr(self, "_dt_last", 0.0)
+        w = 1.0 - math.exp(-dt / t["nis_tau_s"]) if dt > 0.0 else 1.0
+        r = float(t["ocv_std_v"]) ** 2  # the rest reading's, averaged down
+        self._flat_innov_v += w * (y - self._flat_innov_v)
+        self._flat_r_v2 += w * (r - self._flat_r_v2)
+        # Its std if the estimate held: the model's persistent error and the white part's
+        # exponential average (stationary variance w / (2 - w) of it). A SoC elsewhere, where
+        # the OCV differs, adds what this test is for.
+        var = bias_std_v**2 + self._flat_r_v2 * w / (2.0 - w)
+        return self._flat_innov_v**2 <= float(t["ocv_contradiction_sigma"]) ** 2 * var
+
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
-        if self._outside_update_currents(current_a):
+        if self._outside_update_currents(current_a) or self._ocv_cannot_tell(
+            current_a, voltage_v, temp_c
+        ):
             # The first sample too: a start under load must not pull a wide prior P0.
             self.at_rest = False
             v_pred = float(self._hx(self.kf.x[np.newaxis, :], current_a, temp_c)[0, 0])

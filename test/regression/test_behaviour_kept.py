@@ -65,10 +65,12 @@ def test_every_estimator_gives_what_it_gave_before(bag: str) -> None:
             # (model_prior 1, resistance_std_frac 0) it gives what it gave before.
             filters = dict(battery.filters)
             # So is the charge gate (item 1 on charge: the LFP file's 0): inf is the old gate.
+            # And item 9 (no voltage where the OCV is flat): 0 turns it off.
             off = {
                 "model_prior": 1.0,
                 "resistance_std_frac": 0.0,
                 "update_charge_c_rate_max": math.inf,
+                "ocv_soc_resolution_max": 0.0,
             }
             filters["hybrid"] = {**filters.get("hybrid", {}), **off}
             b = replace(battery, filters=filters)
