@@ -145,6 +145,12 @@ class Pack:
     #: ``capacity_x`` (active plate area) instead. 1 for a fresh pack.
     lithium_x: float = 1.0
     active_material_x: float = 1.0
+    #: The Li-ion packs' PyBaMM parameter set (SPMe): Prada2013 (A123 26650 LFP/graphite) for
+    #: the LFP pack, Chen2020 (LG M50 21700 NMC811/graphite-SiOx) for the Li-ion pack.
+    parameter_set: str = "Prada2013"
+    #: The cell's voltage window for its initial (full) state: Prada2013 2.0-3.6 V, Chen2020's
+    #: own 2.5-4.2 V.
+    cell_window_v: tuple[float, float] = (2.0, 3.6)
 
     @property
     def current_scale(self) -> float:
@@ -187,6 +193,22 @@ PACKS = {
         charge_loop_ohm=0.15,
         resistance_ohm=0.0465,
     ),
+    # Seed 001's 4-cell series Li-ion pack: Chen2020's LG M50 (5 Ah nominal, 2.5-4.2 V) as
+    # it is, 4S: 14.4 V nominal, 10.0 V cut-off, charged at 16.8 V. For the pulse test and
+    # its identification only (config/li_ion_4s_chen2020.yaml); no corpus missions.
+    "li_ion": Pack(
+        "li_ion",
+        4,
+        5.0,
+        5.0,
+        10.0,
+        0.20,
+        TECH["li_ion"],
+        "LGM50-4S-SIM",
+        charge_voltage_v=16.8,
+        parameter_set="Chen2020",
+        cell_window_v=(2.5, 4.2),
+    ),
 }
 
 
@@ -212,7 +234,7 @@ class PackSim:
         else:
             options = {"thermal": "lumped"} if pack.thermal else {}
             model = pybamm.lithium_ion.SPMe(options=options)
-            pv = pybamm.ParameterValues("Prada2013")
+            pv = pybamm.ParameterValues(pack.parameter_set)
             if pack.thermal:
                 pv.update(lumped_thermal_parameters(pybamm), check_already_exists=False)
             if pack.graphite_diffusivity_x != 1.0:
@@ -227,11 +249,11 @@ class PackSim:
             # the graphite's concentration over the kept volume, times the lithium kept.
             key = "Initial concentration in negative electrode [mol.m-3]"
             pv[key] = pv[key] * pack.lithium_x / pack.active_material_x
-            pv["Lower voltage cut-off [V]"] = 2.0
-            pv = pv.set_initial_state(1.0, inplace=False)  # 100 %: OCV at the 3.6 V limit
-            # Solver events only (set after the initial state, which uses 2.0-3.6 V): a cold
+            pv["Lower voltage cut-off [V]"], pv["Upper voltage cut-off [V]"] = pack.cell_window_v
+            pv = pv.set_initial_state(1.0, inplace=False)  # 100 %: OCV at the upper limit
+            # Solver events only (set after the initial state, which uses the window): a cold
             # pack sags below 2.0 V/cell on a 38 A peak; the pack cut-off is this tool's job.
-            pv["Upper voltage cut-off [V]"] = 3.8
+            pv["Upper voltage cut-off [V]"] = pack.cell_window_v[1] + 0.2
             pv["Lower voltage cut-off [V]"] = 1.5
         if pack.capacity_x != 1.0:  # area: capacity and every per-area quantity
             for key in (
@@ -416,7 +438,7 @@ def step_segments(current_a: float, step_s: float, n_steps: int) -> list[tuple[f
 def pulse_test_segments(pack: Pack) -> list[tuple[float, float]]:
     """Seed 000 §2.1: rest, then 30-min pulses of ~10 % SoC each with 1-h rests."""
     current = 0.2 * pack.pack_capacity_ah  # 10 % in 30 min (the paper's 13.5 / 12 ohm loads)
-    n_pulses = 6 if pack.chemistry == "sla" else 8  # to 40 % (SLA) and 20 % (LFP)
+    n_pulses = 6 if pack.chemistry == "sla" else 8  # to 40 % (SLA) and 20 % (LFP, Li-ion)
     return step_segments(current, 1800.0, n_pulses)
 
 
@@ -751,6 +773,9 @@ class BagSpec:
     long_rest_s: float = 0.0
     storage: str = "mcap"
     description: str = ""
+    #: Lab tests: the sample rate, and the rate past a segment's first 300 s.
+    rate_hz: float = 10.0
+    tail_rate_hz: float = 1.0
 
 
 SPECS = [
@@ -894,6 +919,17 @@ SPECS = [
         29,
         description="Load test: 10 min rest, seven 10 % steps at 3 C (18 A for 2 min) with 1-h "
         "rests, 100 % to 30 %.",
+    ),
+    BagSpec(
+        "li_ion4s_pulse_test",
+        "li_ion",
+        "pulse_test",
+        31,
+        description="Seed 000 §2.1 pulse-discharge test on a 4S LG M50 pack (PyBaMM Chen2020): "
+        "10 min rest, eight 30-min 1.0 A pulses (10 % SoC each) with 1-h rests, 100 % to 20 %; "
+        "2 Hz, 0.5 Hz past each segment's first 5 minutes (bags/ stays under 80 MB).",
+        rate_hz=2.0,
+        tail_rate_hz=0.5,
     ),
 ]
 
@@ -1235,12 +1271,12 @@ def simulate_bag(spec: BagSpec, capacity_ah: float, pack: Pack) -> dict:
     soc = lambda: 1.0 - sim.discharged_ah / capacity_ah  # noqa: E731
     if spec.kind in ("pulse_test", "load_test"):
         segs = (pulse_test_segments if spec.kind == "pulse_test" else load_test_segments)(pack)
-        run_segments(sim, segs, rec, tail_rate_hz=1.0)
+        run_segments(sim, segs, rec, spec.rate_hz, spec.tail_rate_hz)
         counts = np.cumsum([x.size for x in rec.t_s])
         rest_ends = [int(counts[0]) - 1] + [int(counts[k]) - 1 for k in range(2, len(segs), 2)]
     elif spec.kind == "rate_test":
         segs = rate_test_segments(pack)
-        run_segments(sim, segs, rec, tail_rate_hz=1.0)
+        run_segments(sim, segs, rec, spec.rate_hz, spec.tail_rate_hz)
         counts = np.cumsum([x.size for x in rec.t_s])
         rest_ends = [
             int(counts[k]) - 1 for k, (dur, cur) in enumerate(segs) if dur >= 600.0 and cur == 0.0
@@ -1486,6 +1522,12 @@ class HealthPack:
     resistance_x: float = 1.0
     lithium_x: float = 1.0
     active_material_x: float = 1.0
+    #: The Li-ion packs' PyBaMM parameter set (SPMe): Prada2013 (A123 26650 LFP/graphite) for
+    #: the LFP pack, Chen2020 (LG M50 21700 NMC811/graphite-SiOx) for the Li-ion pack.
+    parameter_set: str = "Prada2013"
+    #: The cell's voltage window for its initial (full) state: Prada2013 2.0-3.6 V, Chen2020's
+    #: own 2.5-4.2 V.
+    cell_window_v: tuple[float, float] = (2.0, 3.6)
     #: Another size (``--sized``): cells in series and the nominal capacity; the mission's
     #: currents times the nominal capacity over the bundled pack's (a robot sized to its pack).
     cells: int | None = None
@@ -2125,7 +2167,9 @@ def main(argv: list[str] | None = None) -> int:
         "--cells", action="store_true", help="make the 4S LFP cell-by-cell missions (--cells)"
     )
     ap.add_argument("--count", type=int, default=30, help="corpus: missions per chemistry")
-    ap.add_argument("--chemistry", nargs="+", choices=sorted(PACKS), default=["lfp", "sla"])
+    ap.add_argument(
+        "--chemistry", nargs="+", choices=sorted(CHEMISTRY_STREAM), default=["lfp", "sla"]
+    )
     ap.add_argument("--seeds", type=int, nargs="+", help="corpus: these seeds, not --count")
     args = ap.parse_args(argv)
     if args.corpus:

@@ -648,7 +648,10 @@ def assert_same_tree(ours, theirs, key: str = "") -> None:
         assert ours == theirs, key
 
 
-@pytest.mark.parametrize("name", ["sla_12v5ah.yaml", "lfp_12v6ah.yaml", "li_ion_ncr18650pf.yaml"])
+@pytest.mark.parametrize(
+    "name",
+    ["sla_12v5ah.yaml", "lfp_12v6ah.yaml", "li_ion_ncr18650pf.yaml", "li_ion_4s_chen2020.yaml"],
+)
 def test_bundled_files_are_the_identified_ones(name: str, tmp_path: Path, monkeypatch) -> None:
     """config/*.yaml hold what soc_identify produces from the bundled bags: the command in each
     header, run again, writes the same file (the NCR18650PF's needs ../shared/real-data), and
