@@ -430,45 +430,47 @@ class Hybrid(T2rcUkf):
         charge_gate_a = min(float(t["update_charge_c_rate_max"]), gate_c) * self.capacity_ah
         return -current_a > max(charge_gate_a, self._rest_band_a)
 
-    def _ocv_cannot_tell(self, current_a: float, voltage_v: float, temp_c) -> bool:
+    def _flat_rest_reading(self, current_a: float) -> bool:
         """Item 9: a rest reading where the OCV is flat at the SoC estimate (the model's error
-        ``bias_std_v`` reads as more than ``ocv_soc_resolution_max`` of SoC there), unless the
-        voltage contradicts the estimate (the innovation at the mean, averaged over
-        ``nis_tau_s``, beyond ``ocv_contradiction_sigma`` times its std)."""
+        ``bias_std_v`` reads as more than ``ocv_soc_resolution_max`` of SoC there). Anything
+        else starts the contradiction's average again."""
         t = self.tuning
         limit = float(t["ocv_soc_resolution_max"])
-        if not (limit > 0.0 and self._rest_reading(current_a)):
+        flat = (
+            limit > 0.0
+            and self._rest_reading(current_a)
+            and float(t["bias_std_v"])
+            > limit * abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
+        )
+        if not flat:
             self._flat_innov_v = self._flat_r_v2 = 0.0
-            return False
-        x = self.kf.x
-        slope = abs(self.model.ocv.slope(float(x[self.soc_index])))
-        bias_std_v = float(t["bias_std_v"])
-        if bias_std_v <= limit * slope:
-            self._flat_innov_v = self._flat_r_v2 = 0.0
-            return False
-        # The innovation at the mean, as the gated path predicts it (with the bias).
-        self.at_rest = False
-        y = voltage_v - float(self._hx(x[np.newaxis, :], current_a, temp_c)[0, 0])
+        return flat
+
+    def _contradicts_flat_estimate(self, innovation_v: float) -> bool:
+        """Item 9's way out: ``innovation_v`` (the reading less the prediction at the mean,
+        with the bias), averaged over ``nis_tau_s``, beyond ``ocv_contradiction_sigma`` times
+        its std if the estimate held."""
+        t = self.tuning
         dt = getattr(self, "_dt_last", 0.0)
         w = 1.0 - math.exp(-dt / t["nis_tau_s"]) if dt > 0.0 else 1.0
         r = float(t["ocv_std_v"]) ** 2  # the rest reading's, averaged down
-        self._flat_innov_v += w * (y - self._flat_innov_v)
+        self._flat_innov_v += w * (innovation_v - self._flat_innov_v)
         self._flat_r_v2 += w * (r - self._flat_r_v2)
         # Its std if the estimate held: the model's persistent error and the white part's
         # exponential average (stationary variance w / (2 - w) of it). A SoC elsewhere, where
         # the OCV differs, adds what this test is for.
-        var = bias_std_v**2 + self._flat_r_v2 * w / (2.0 - w)
-        return self._flat_innov_v**2 <= float(t["ocv_contradiction_sigma"]) ** 2 * var
+        var = float(t["bias_std_v"]) ** 2 + self._flat_r_v2 * w / (2.0 - w)
+        return self._flat_innov_v**2 > float(t["ocv_contradiction_sigma"]) ** 2 * var
 
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
-        if self._outside_update_currents(current_a) or self._ocv_cannot_tell(
-            current_a, voltage_v, temp_c
-        ):
+        gated = self._outside_update_currents(current_a)
+        if gated or self._flat_rest_reading(current_a):
             # The first sample too: a start under load must not pull a wide prior P0.
             self.at_rest = False
             v_pred = float(self._hx(self.kf.x[np.newaxis, :], current_a, temp_c)[0, 0])
-            return v_pred, math.nan, math.nan
+            if gated or not self._contradicts_flat_estimate(voltage_v - v_pred):
+                return v_pred, math.nan, math.nan
         v_pred, innov, nis = super()._update(current_a, voltage_v, temp_c)
         if self.at_rest:
             self._fuse_rest_ocv(current_a, voltage_v, temp_c)
