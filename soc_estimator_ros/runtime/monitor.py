@@ -271,11 +271,21 @@ class RuntimeMonitor:
     def pack_state(self, est: Estimate, estimator: Any, temperature_c: float | None) -> PackState:
         """The state the predictions read: the estimator's branch voltages, surface lag,
         model-error voltage and resistance error where it has them (by name), else the
-        monitor's own (no model error)."""
+        monitor's own (no model error); the stds of those the estimator has, from its
+        covariance (the state of power's margin)."""
         names = est.state_names
+        p = np.atleast_2d(np.asarray(est.p, dtype=float))
+
+        def std(name: str) -> float:
+            k = names.index(name) if name in names else -1
+            return math.sqrt(max(float(p[k, k]), 0.0)) if 0 <= k < p.shape[0] else 0.0
+
         branch = self._estimator_branches(est)
+        branch_std: tuple[float, ...] = ()
         if branch is None:
             branch = self._branch_v
+        else:
+            branch_std = tuple(std(f"v{k + 1}_v") for k in range(self.model.n_rc))
         z = self._estimator_surface(estimator)
         if z is None:
             z = self._surface_z
@@ -289,6 +299,9 @@ class RuntimeMonitor:
             bias_v=bias,
             r_delta_ohm=r_delta,
             temperature_c=temperature_c,
+            branch_std_v=branch_std,
+            bias_std_v=std("bias_v"),
+            r_delta_std_ohm=std("r_delta_ohm"),
         )
 
     def forecast(self) -> LoadForecast:

@@ -48,7 +48,21 @@ checked at the start, half-way and the end of the horizon. The
 current is found on a grid refined twice and interpolated; it is capped at the file's current
 limits (``current_max_discharge_a``, ``current_max_charge_a``) and at the highest current the
 model was fitted at (``thevenin.fitted_c_rate_max``, when the file records it): beyond it the
-voltage is the model's extrapolation, not a measurement. Measured against the physics
+voltage is the model's extrapolation, not a measurement. The voltage is held to its limit with
+a margin of ``SOP_CONFIDENCE_K`` (1.645, one-sided 95 %) standard deviations of the predicted
+voltage (:func:`prediction_std_v`), from the estimate's own uncertainty::
+
+    sigma_V(I)^2 = (dOCV/dsoc sigma_soc)^2 + sum_i sigma_Vi^2 + sigma_b^2 + (I sigma_dR)^2
+
+the SoC's (through the OCV slope at the present SoC), the branch voltages' (held, not decayed:
+the larger), the model-error voltage's and the series-resistance error's (the hybrid's
+``bias_v`` and ``r_delta_ohm``, their variances from its covariance; 0 for an estimator
+without them). A pack whose resistance the filter has not learned yet (the state's prior, 8.7 %
+of the file's) gets a smaller prediction than one it has: the planner reads a current the pack
+gives with that confidence, not the model's best guess (docs/accuracy.md, "State of power":
+without the margin the 10-s prediction on SLA at 0 degC and 47 % SoC was 5.1 % above what
+took the simulated pack to the limit, where the filter's own std of that voltage was 29 mV, and
+the drawn current took it 30-40 mV below). Measured against the physics
 (docs/accuracy.md, "State of power"): without that cap the 10-s prediction on the LFP pack at
 32 % SoC was 60 A (the file's limit) where 50.8 A took the simulated cell to ``voltage_min_v``
 (its voltage fell to 8.0 V at 60 A): the kinetic fit covered 5-s steps up to 6.2 C (36 A), and
@@ -89,6 +103,8 @@ EARLY_POWER_REL_STD = 0.5
 MAX_HOLD_S = 5.0
 #: State-of-power horizons (s).
 SOP_HORIZONS_S = (10.0, 60.0)
+#: Standard deviations of the predicted voltage kept between it and the limit (one-sided 95 %).
+SOP_CONFIDENCE_K = 1.645
 #: Grid points of each of the two passes of the state-of-power search.
 _SOP_GRID = 33
 #: Model steps between the times the state of power checks (parameters re-read each step).
@@ -111,6 +127,9 @@ class PackState:
         r_delta_ohm: an error on the model's series resistance (the hybrid's ``r_delta_ohm``;
             0 without one): the power predictions' voltage less ``I r_delta_ohm``.
         temperature_c: temperature (degC; None: the tables' 25 degC row).
+        branch_std_v, bias_std_v, r_delta_std_ohm: the stds of ``branch_v``, ``bias_v`` and
+            ``r_delta_ohm`` (the estimator's; 0 where it has no such state): with
+            ``soc_std``, the state of power's margin (:func:`prediction_std_v`).
     """
 
     soc: float
@@ -120,6 +139,9 @@ class PackState:
     bias_v: float = 0.0
     r_delta_ohm: float = 0.0
     temperature_c: float | None = None
+    branch_std_v: tuple[float, ...] = ()
+    bias_std_v: float = 0.0
+    r_delta_std_ohm: float = 0.0
 
 
 # -- the model's voltage, vectorized over SoC and current ---------------------------------------
@@ -417,6 +439,15 @@ def time_to_empty(
 
 
 # -- state of power -----------------------------------------------------------------------------
+def prediction_std_v(model: TheveninModel, state: PackState, current_a: np.ndarray) -> np.ndarray:
+    """``sigma_V(I)`` of the module docstring: the std of the voltage predicted at each current
+    of ``current_a`` (A, either sign) from ``state``'s uncertainty."""
+    i = np.asarray(current_a, dtype=float)
+    fixed = (model.ocv.slope(state.soc) * state.soc_std) ** 2 + state.bias_std_v**2
+    fixed += sum(s * s for s in state.branch_std_v)
+    return np.sqrt(fixed + (i * state.r_delta_std_ohm) ** 2)
+
+
 @dataclass(frozen=True)
 class StateOfPower:
     """The largest currents (A, magnitudes) the pack can take for each horizon within the
@@ -442,14 +473,16 @@ def _max_currents(model: TheveninModel, state: PackState, cases: list[_Case]) ->
     times = sorted({0.0, *(c.horizon_s for c in cases), *(0.5 * c.horizon_s for c in cases)})
 
     def worst(which: list[int], grids: list[np.ndarray]) -> list[np.ndarray]:
-        """The worst voltage over each case's horizon, for cases ``which`` on their grids."""
+        """The worst voltage over each case's horizon, for cases ``which`` on their grids, less
+        (charge: plus) its margin, ``SOP_CONFIDENCE_K`` times :func:`prediction_std_v`."""
         sel = [cases[n] for n in which]
         signed = np.concatenate([(-g if c.charge else g) for c, g in zip(sel, grids, strict=True)])
         vs = terminal_path_v(model, state, signed, tuple(times))
         out, k = [], 0
         for c, g in zip(sel, grids, strict=True):
             rows = vs[[j for j, t in enumerate(times) if t <= c.horizon_s], k : k + g.size]
-            out.append(rows.max(axis=0) if c.charge else rows.min(axis=0))
+            margin = SOP_CONFIDENCE_K * prediction_std_v(model, state, g)
+            out.append(rows.max(axis=0) + margin if c.charge else rows.min(axis=0) - margin)
             k += g.size
         return out
 
@@ -492,7 +525,8 @@ def max_current_a(
 ) -> float:
     """The largest constant current magnitude (A, at most ``current_cap_a``) whose terminal
     voltage over the next ``horizon_s`` stays at or above ``voltage_limit_v`` (discharge) or
-    at or below it (``charge``), from ``state`` (module docstring): a grid over
+    at or below it (``charge``) by ``SOP_CONFIDENCE_K`` times its std (:func:`prediction_std_v`;
+    0 for a ``state`` without uncertainty), from ``state`` (module docstring): a grid over
     [0, ``current_cap_a``], refined once in the bracket where the limit is crossed, and
     interpolated there. 0 when even no current meets the limit."""
     return _max_currents(model, state, [_Case(horizon_s, voltage_limit_v, current_cap_a, charge)])[
