@@ -81,6 +81,7 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "r_per_a": OHM,
     "update_c_rate_max": NONE,
     "update_charge_c_rate_max": NONE,
+    "update_soc_min": NONE,
     "rest_filter_tau_s": NONE,
     "rest_min_s": NONE,
     "ocv_std_v": VOLT,

@@ -27,7 +27,17 @@ papers report:
    derives the charge gate where the tests hold charges (``identification/tuning.py``); the
    bundled LFP file gives 0, chosen on the corpus' tuning half (its dock charges at 0.7 C
    read up to 100 mV below the model's, which the model-error states took up only in part:
-   the SoC ran 1-1.5 points high through the CC phase; docs/accuracy.md, "Charging").
+   the SoC ran 1-1.5 points high through the CC phase; docs/accuracy.md, "Charging"). Nor
+   is a load (beyond the rest band) read while the filter's SoC lies between the file's
+   ``limits.soc_min`` and ``update_soc_min``: below the lowest SoC the pulses were taken at,
+   the model's tables are held, not measured. 0, the default, reads it (SLA's model below its
+   lowest level, 47 %, follows its missions to 40 %); the LFP file sets its lowest level,
+   24.6 %, chosen on the corpus' tuning half: under load at its bottom knee the physics sags
+   hundreds of millivolts beyond the held tables, and the UKF read that as SoC, 2-4 points
+   low in the range a robot plans with (docs/accuracy.md, "Below the lowest pulse"). Below
+   ``soc_min``, in the pack's reserve, loads are read again: there the knee's collapse is
+   what tells how near the cut-off is (the 4S pack's usable SoC reaches 0 at its weakest
+   cell's cut-off through it; docs/cells.md).
 2. **Load-dependent measurement noise.** The 2RC model's voltage error grows with the current
    (seed 000 Fig. 11b: the Thevenin model's voltage error is larger than the RC model's under
    load). ``R = r + (r_per_a I)^2``, so heavy load pulls the SoC less than a rest does.
@@ -146,6 +156,7 @@ class Hybrid(T2rcUkf):
         # C: nor above this charge current (beyond the rest band); inf: the discharge gate
         # serves both directions (item 1).
         "update_charge_c_rate_max": math.inf,
+        "update_soc_min": 0.0,  # SoC: nor from limits.soc_min up to this; 0: no such gate
         "rest_current_a": 0.1,  # A: |low-passed current| at or below this is a rest
         "rest_filter_tau_s": 5.0,  # s: low-pass on the current before the rest test
         "rest_min_s": 1200.0,  # s: lead-acid still relaxes tens of mV 20 min after a load
@@ -422,8 +433,14 @@ class Hybrid(T2rcUkf):
     def _outside_update_currents(self, current_a: float) -> bool:
         """Item 1: a current above ``update_c_rate_max``, or a charge above
         ``update_charge_c_rate_max`` and beyond the rest band (:attr:`_rest_band_a`: a
-        sensor's noise around zero is not a charge), both in C of the capacity."""
+        sensor's noise around zero is not a charge), both in C of the capacity; or a current
+        beyond the rest band at a SoC from ``limits.soc_min`` up to ``update_soc_min``."""
         t = self.tuning
+        soc = float(self.kf.x[self.soc_index])
+        if abs(current_a) > self._rest_band_a and self.battery.limits.soc_min <= soc < float(
+            t["update_soc_min"]
+        ):
+            return True
         gate_c = float(t["update_c_rate_max"])
         if current_a >= 0.0:
             return current_a > gate_c * self.capacity_ah

@@ -37,7 +37,9 @@ entry (the table in docs/identification.md, "Filter tunings"):
   Where ``r`` and the bias state already cover every bin (the bundled packs: ``r`` is (224 mV)^2
   against errors of 8-81 mV), the code default stays.
 * ``hybrid.bias_std_v`` (**measured**: ``model_error.py``); ``hybrid.bias_tau_s`` (the code
-  default: not identified).
+  default: not identified); ``hybrid.update_soc_min`` (the code default, no gate: whether the
+  model holds below its lowest pulse level under load is a choice on recordings of the pack,
+  as the bundled LFP file's is, not something the pulses show).
 * every other entry (``r`` of every filter, the rest detection, ``ocv_std_v``, the NIS gate,
   process noises, initial variances, sigma points, the papers' presets): the **template's**.
 
@@ -80,6 +82,7 @@ MODEL_SPECIFIC: Mapping[str, Mapping[str, str]] = {
     "hybrid": {
         "update_c_rate_max": "derived",
         "update_charge_c_rate_max": "derived",
+        "update_soc_min": "default",
         "r_per_a": "derived",
         "bias_std_v": "measured",
         "bias_tau_s": "default",
@@ -402,6 +405,7 @@ def identified_tunings(
             "the model's RMS error from a load to the hybrid's rest (model_error.py)",
         ),
         ("bias_tau_s", None, "default", "not identified"),
+        ("update_soc_min", None, "default", "a choice on recordings of the pack, not identified"),
     ]
     sources: list[TuningSource] = []
     written: dict[tuple[str, str], Any] = {}

@@ -583,6 +583,28 @@ def test_hybrid_charge_gate_reads_no_voltage_while_charging_above_it() -> None:
         assert not opened.step(5.0, -1.1 * gate_a, 13.9).updated
 
 
+def test_hybrid_reads_no_load_below_update_soc_min() -> None:
+    """Item 1 in SoC: from the file's ``soc_min`` (0.2) up to ``update_soc_min`` (the LFP
+    file's lowest pulse level, 0.246) a load beyond the rest band only propagates; a rest is
+    read, and so is a load above the band or below ``soc_min`` (the reserve); without the gate
+    (the default, 0) the same loads are read (discharges: the LFP file reads no charge,
+    ``update_charge_c_rate_max`` 0)."""
+    assert Hybrid.default_tuning["update_soc_min"] == 0.0
+    assert LFP.filters["hybrid"]["update_soc_min"] == 0.246
+    assert LFP.thevenin_model().params.r0_ohm.soc[0] == pytest.approx(0.246, abs=1e-4)
+    q_ah = LFP.capacity_ah
+    assert LFP.limits.soc_min == 0.2
+    for start, gated in ((0.22, True), (0.30, False), (0.15, False)):
+        est = make_estimator("hybrid", LFP, start, 0.01, tuning=dict(LFP.filters["hybrid"]))
+        rest_band_a = 2.0 * est.tuning["rest_current_a"]
+        steps = [(1.0, 0.5 * q_ah), (2.0, 2.0 * rest_band_a), (3.0, 0.5 * rest_band_a)]
+        updated = [est.step(t, i, 12.7).updated for t, i in steps]
+        assert updated == ([False, False, True] if gated else [True, True, True])
+    no_gate = {**LFP.filters["hybrid"], "update_soc_min": 0.0}
+    off = make_estimator("hybrid", LFP, 0.22, 0.01, tuning=no_gate)
+    assert [off.step(t, i, 12.7).updated for t, i in steps] == [True, True, True]
+
+
 @pytest.mark.parametrize("name", ["t2rc_ukf", "hybrid"])
 def test_sigma_points_with_a_negative_covariance_weight_are_refused(name: str) -> None:
     """A negative centre weight lets the prior lose positive definiteness: measured, the
