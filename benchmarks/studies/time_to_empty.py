@@ -26,6 +26,12 @@ power over the last voltage, as a DC-DC converter draws) down past ``soc_min``, 
 
     .venv/bin/python benchmarks/studies/time_to_empty.py [--initial-soc ref|ocv] [--jobs 2]
     /tmp/sim/bin/python benchmarks/studies/time_to_empty.py --stationary
+    .venv/bin/python benchmarks/studies/time_to_empty.py --corpus DIR [--split validation]
+
+``--corpus DIR``: the scenario corpus' missions in ``DIR`` (``tools/make_bags.py --corpus``)
+whose ``bag.yaml`` names the split (default: validation), as recorded: their loads are not
+stationary (drive, idle and seeder phases, rests, opportunity and dock charges); a mission
+whose reference does not reach ``soc_min`` is listed and not scored.
 
 About 1-2 minutes per run on one core.
 """
@@ -113,7 +119,8 @@ def run_one(args: tuple[str | int, str]) -> dict:
         name, series = stationary_series(which)
         battery = load_battery_params(bundled_file(name.split("_")[0]))
     else:
-        name, series = which, read_recording(BAGS / which)
+        path = Path(which) if Path(which).is_absolute() else BAGS / which
+        name, series = path.name, read_recording(path)
         battery = load_battery_params(battery_file_for(series))
     config = tracker_config(series, "hybrid", initial_soc, runtime=True)
     tracker = Tracker(battery, GateConfig.from_limits(battery.limits), config)
@@ -165,6 +172,16 @@ def run_one(args: tuple[str | int, str]) -> dict:
     }
 
 
+def corpus_missions(directory: Path, split: str) -> list[Path]:
+    """The corpus missions in ``directory`` whose ``bag.yaml`` says ``split: <split>``."""
+    out = []
+    for d in sorted(p for p in directory.iterdir() if (p / "bag.yaml").is_file()):
+        meta = yaml.safe_load((d / "bag.yaml").read_text()) or {}
+        if meta.get("kind") == "mission" and meta.get("split") == split:
+            out.append(d)
+    return out
+
+
 def fmt_marks(score: TimeToEmptyScore | None) -> list[str]:
     out = []
     for mark, p, s, a in score.marks if score else ():
@@ -195,10 +212,14 @@ def main() -> int:
     ap.add_argument(
         "--stationary", action="store_true", help="simulated stationary-load runs instead"
     )
+    ap.add_argument("--corpus", type=Path, help="a directory of corpus missions instead")
+    ap.add_argument("--split", default="validation", help="with --corpus: this split only")
     args = ap.parse_args()
     which: list[str | int] = (
         list(range(len(STATIONARY))) if args.stationary else args.runs.split(",")
     )
+    if args.corpus is not None:
+        which = [str(d.resolve()) for d in corpus_missions(args.corpus, args.split)]
     runs = [(r, args.initial_soc) for r in which]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(run_one, runs))
