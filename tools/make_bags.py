@@ -1522,12 +1522,6 @@ class HealthPack:
     resistance_x: float = 1.0
     lithium_x: float = 1.0
     active_material_x: float = 1.0
-    #: The Li-ion packs' PyBaMM parameter set (SPMe): Prada2013 (A123 26650 LFP/graphite) for
-    #: the LFP pack, Chen2020 (LG M50 21700 NMC811/graphite-SiOx) for the Li-ion pack.
-    parameter_set: str = "Prada2013"
-    #: The cell's voltage window for its initial (full) state: Prada2013 2.0-3.6 V, Chen2020's
-    #: own 2.5-4.2 V.
-    cell_window_v: tuple[float, float] = (2.0, 3.6)
     #: Another size (``--sized``): cells in series and the nominal capacity; the mission's
     #: currents times the nominal capacity over the bundled pack's (a robot sized to its pack).
     cells: int | None = None
