@@ -4,11 +4,12 @@ and print, after the 10-minute window, every cell's SoC MAE and max, the usable 
 and max, the weakest cell at the end (estimated and true), and at the first cell's cut-off
 (the mission's end, where a mission ran a cell empty) the usable SoC estimated and true.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/studies/cells_accuracy.py [bag ...]
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/cells_accuracy.py [bag ...] [--initial-soc ref]
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,12 +41,16 @@ class CellScore:
     coverage_2sigma: float  # cells within 2 std after the window
 
 
-def score_bag(bag: Path) -> CellScore:
-    """One mission through the replay's tracker (the node's path)."""
+def score_bag(bag: Path, initial_soc: str = "ocv") -> CellScore:
+    """One mission through the replay's tracker (the node's path), started as
+    ``soc_replay --initial-soc`` (``ocv``: the node's boot; ``ref``: the true start)."""
     series = read_battery_bag(bag)
     meta = yaml.safe_load((bag / "bag.yaml").read_text())
     battery = load_battery_params(ROOT / "config" / "lfp_12v6ah.yaml")
-    r = replay_estimator(series, battery, "hybrid", "ocv", bag.name)
+    assert series.cell_soc_ref is not None
+    if initial_soc == "ref":  # the pack's filter estimates the average cell: start it there
+        initial_soc = repr(float(np.mean(series.cell_soc_ref[0])))
+    r = replay_estimator(series, battery, "hybrid", initial_soc, bag.name)
     e = r.estimates
     assert e.cell_soc is not None and e.cell_soc_std is not None
     assert series.cell_soc_ref is not None and series.soc_ref is not None
@@ -71,14 +76,22 @@ def score_bag(bag: Path) -> CellScore:
 
 
 def main(argv: list[str]) -> int:
-    bags = [Path(a) for a in argv] or sorted((ROOT / "bags").glob("lfp4s_cells_*"))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("bags", nargs="*", type=Path)
+    ap.add_argument(
+        "--initial-soc",
+        default="ocv",
+        help="ocv (the node's boot, default) or ref (the cells' true mean, std 0.1)",
+    )
+    args = ap.parse_args(argv)
+    bags = args.bags or sorted((ROOT / "bags").glob("lfp4s_cells_*"))
     print(
         "| Mission | set | cell MAE % (1..N) | cell max % | usable MAE / max % | "
         "weakest est / true | usable at cut-off est / true % | 2 sigma |"
     )
     print("|---|---|---|---|---|---|---|---|")
     for bag in bags:
-        s = score_bag(bag)
+        s = score_bag(bag, args.initial_soc)
         cut = (
             "-"
             if s.usable_at_cutoff_est is None or s.usable_at_cutoff_true is None

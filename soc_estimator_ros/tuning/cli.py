@@ -1,11 +1,13 @@
 """``soc_tune``: tune a battery file's ``filters`` block on recordings, with cross-validation.
 
     soc_tune RECORDING [RECORDING ...] --params FILE --output FILE [--estimator hybrid]
-             [--space KEY=LO:HI[:log] ...] [--trials 32] [--folds 3] [--seed 0]
-             [--wrong-start 0.3] [--jobs N] [--scheduler ADDRESS|local]
+             [--space KEY=LO:HI[:log] ...] [--search random|local] [--trials 32]
+             [--step 0.15] [--folds 3] [--seed 0] [--wrong-start 0.3] [--jobs N]
+             [--scheduler ADDRESS|local]
 
 RECORDING: bags or CSVs with a reference SoC, or directories of bags (as ``soc_replay``).
-Every candidate tuning (the file's own, then ``--trials`` random draws from the space,
+Every candidate tuning (the file's own, then ``--trials`` random draws from the space, or with
+``--search local`` the file's tuning moved by ``--step`` of each dimension's range either way,
 ``search.py``) is scored on every recording (``objective.py``); the folds choose and judge as
 ``crossval.py`` says. Printed: each fold's held-out recordings, the tuning chosen on the
 others and its held-out score beside the file's; then the tuning chosen on all recordings.
@@ -44,7 +46,14 @@ from .objective import (
     coulomb_max_pct,
     score_recording,
 )
-from .search import DEFAULT_SPACES, Dimension, apply, candidates, parse_dimension
+from .search import (
+    DEFAULT_SPACES,
+    Dimension,
+    apply,
+    candidates,
+    local_candidates,
+    parse_dimension,
+)
 
 #: Exit status when the tuning is refused (its held-out score is worse than the file's).
 REFUSED = 3
@@ -102,7 +111,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="a searched entry (repeat; KEY.i for element i of a tuple entry); default: the "
         f"estimator's ({', '.join(sorted(DEFAULT_SPACES))})",
     )
+    ap.add_argument(
+        "--search",
+        choices=("random", "local"),
+        default="random",
+        help="random: --trials draws from the space; local: the file's tuning moved by "
+        "--step either way, one dimension at a time (default random)",
+    )
     ap.add_argument("--trials", type=int, default=32, help="random candidates (default 32)")
+    ap.add_argument(
+        "--step",
+        type=float,
+        default=0.15,
+        help="local search: the move, as a fraction of each dimension's range (default 0.15)",
+    )
     ap.add_argument("--folds", type=int, default=3, help="cross-validation folds (default 3)")
     ap.add_argument("--seed", type=int, default=0, help="candidates and folds (default 0)")
     ap.add_argument(
@@ -194,9 +216,12 @@ def main(argv: list[str] | None = None) -> int:
         for p in paths:
             if read_recording(Path(p)).soc_ref is None:
                 raise ValueError(f"{p}: no reference SoC to tune on")
-        if args.trials < 1:
+        if args.search == "local":
+            cands = local_candidates(space, base, args.step)
+        elif args.trials < 1:
             raise ValueError("--trials must be >= 1")
-        cands = candidates(space, args.trials, args.seed)
+        else:
+            cands = candidates(space, args.trials, args.seed)
         tasks: list[Task] = [
             (p, str(args.params), args.estimator, c, args.wrong_start) for c in cands for p in paths
         ]

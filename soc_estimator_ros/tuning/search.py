@@ -3,9 +3,15 @@
 A dimension is a tuning entry (``r``) or one element of a tuple entry (``q_diag.0``) between two
 bounds, searched uniformly or, with ``log``, log-uniformly (noise variances span decades).
 The candidates are the file's own tuning first (no change: the baseline every tuning must beat)
-and then ``n`` random draws from the box, the same for a seed (random search: Bergstra &
+and then either ``n`` random draws from the box, the same for a seed (random search: Bergstra &
 Bengio, "Random search for hyper-parameter optimization", JMLR 13, 2012, which finds it no
-worse than a grid for a few effective dimensions, and it needs no model of the objective).
+worse than a grid for a few effective dimensions, and it needs no model of the objective), or
+the file's tuning moved one dimension at a time by ``step`` of that dimension's range either
+way (local search: one step of a compass search, Kolda, Lewis & Torczon, "Optimization by
+direct search", SIAM Review 45, 2003, section 3; log dimensions move in log space, so a step
+of 0.15 over ``r``'s three decades is a factor of 2.8). Random draws over a wide box choose
+harmful tunings as readily as good ones on a few recordings (docs/tuning.md); the local
+candidates stay next to a tuning that was identified, so a fold can only move it a step.
 """
 
 from __future__ import annotations
@@ -37,6 +43,19 @@ class Dimension:
     @property
     def label(self) -> str:
         return self.key if self.index is None else f"{self.key}.{self.index}"
+
+    def position(self, value: float) -> float:
+        """Where ``value`` lies in the box, 0 at ``lo`` and 1 at ``hi`` (log dimensions in log
+        space); outside the box below 0 or above 1."""
+        if self.log:
+            return math.log(value / self.lo) / math.log(self.hi / self.lo)
+        return (value - self.lo) / (self.hi - self.lo)
+
+    def at(self, position: float) -> float:
+        """The value at ``position`` (the inverse of :meth:`position`)."""
+        if self.log:
+            return float(self.lo * (self.hi / self.lo) ** position)
+        return float(self.lo + (self.hi - self.lo) * position)
 
     def draw(self, rng: np.random.Generator) -> float:
         if self.log:
@@ -96,3 +115,30 @@ def candidates(space: Sequence[Dimension], n: int, seed: int) -> list[dict[str, 
     """The file's tuning (``{}``: nothing changed) and ``n`` draws, by label."""
     rng = np.random.default_rng(seed)
     return [{}] + [{d.label: d.draw(rng) for d in space} for _ in range(n)]
+
+
+def value_of(base: Mapping[str, Any], d: Dimension) -> float:
+    """The entry ``d`` searches, as ``base`` (a full tuning) holds it."""
+    entry = base[d.key]
+    return float(entry if d.index is None else entry[d.index])
+
+
+def local_candidates(
+    space: Sequence[Dimension], base: Mapping[str, Any], step: float
+) -> list[dict[str, float]]:
+    """The file's tuning (``{}``) and, for each dimension, the file's value moved by ``step``
+    of the box down and up (within the box; a move that changes nothing is left out), by
+    label: at most ``2 len(space)`` candidates, the same for every seed."""
+    if not 0.0 < step <= 1.0:
+        raise ValueError(f"--step {step}: expected a fraction of each range in (0, 1]")
+    out: list[dict[str, float]] = [{}]
+    for d in space:
+        v0 = value_of(base, d)
+        if d.log and v0 <= 0.0:
+            raise ValueError(f"{d.label}: the file's value {v0} cannot move on a log range")
+        u0 = min(max(d.position(v0), 0.0), 1.0)
+        for u in (u0 - step, u0 + step):
+            v = d.at(min(max(u, 0.0), 1.0))
+            if not math.isclose(v, v0, rel_tol=1e-9, abs_tol=0.0):
+                out.append({d.label: v})
+    return out

@@ -118,6 +118,24 @@ def test_soc_tune_is_deterministic_and_writes_only_an_accepted_tuning(excerpts, 
     assert tuned.thevenin == load_battery_params(SLA).thevenin  # only the filters changed
 
 
+def test_local_search_moves_the_files_tuning_a_step(excerpts, tmp_path, capsys):
+    """``--search local`` from the same badly tuned file: on r's 7 decades (log) a step of
+    0.8 moves 1e-6 up by 5.6 decades to 0.398 V^2 (down it is at the bound: no candidate), in
+    the range that does better on every recording, so that move is chosen and written."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        SLA.read_text().replace("\nfilters:\n", "\nfilters:\n  t2rc_ukf: {r: 1.0e-06}\n", 1)
+    )
+    out = tmp_path / "local.yaml"
+    args = [*map(str, excerpts[:2]), "--params", str(bad), "--output", str(out)]
+    args += ["--estimator", "t2rc_ukf", "--space", "r=1e-6:10:log", "--search", "local"]
+    args += ["--step", "0.8", "--folds", "2", "--wrong-start", "0", "--jobs", "1"]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "chosen on all: r 0.3981" in printed, printed
+    assert math.isclose(float(load_battery_params(out).filters["t2rc_ukf"]["r"]), 10**-0.4)
+
+
 def test_errors_are_one_line(excerpts, tmp_path, capsys):
     no_ref = tmp_path / "no_ref.csv"
     rows = excerpts[0].read_text().splitlines()
@@ -128,6 +146,7 @@ def test_errors_are_one_line(excerpts, tmp_path, capsys):
         ([*map(str, excerpts), "--space", "r=1"], "--space"),
         ([*map(str, excerpts), "--space", "nosuch=1:2"], "no tuning entry 'nosuch'"),
         ([*map(str, excerpts), "--estimator", "ekf"], "no default space"),
+        ([*map(str, excerpts), "--search", "local", "--step", "0"], "--step"),
         (
             [*map(str, excerpts[:2]), "--folds", "3", "--trials", "1", "--wrong-start", "0"],
             "--folds",

@@ -11,6 +11,7 @@ from soc_estimator_ros.tuning.search import (
     Dimension,
     apply,
     candidates,
+    local_candidates,
     parse_dimension,
 )
 
@@ -43,3 +44,21 @@ def test_apply_sets_an_entry_and_one_element_of_a_tuple_entry():
     assert out == {"r": 0.5, "q_diag": (1.0, 9.0, 3.0)}
     assert base["q_diag"] == (1.0, 2.0, 3.0)  # not changed in place
     assert math.isclose(apply(base, {})["r"], 1.0)
+
+
+def test_local_candidates_move_one_dimension_a_step_either_way_within_the_box():
+    r = Dimension("r", 1e-3, 1.0, log=True)  # three decades: a step of 1/3 is a factor of 10
+    q = Dimension("q_diag", 0.0, 1.0, index=1)  # linear
+    base = {"r": 0.01, "q_diag": (5.0, 0.95)}
+    out = local_candidates((r, q), base, 1.0 / 3.0)
+    assert out[0] == {}  # the file's own first
+    assert [set(c) for c in out[1:]] == [{"r"}, {"r"}, {"q_diag.1"}, {"q_diag.1"}]
+    assert math.isclose(out[1]["r"], 1e-3) and math.isclose(out[2]["r"], 0.1)
+    # Linear: 0.95 - 1/3 is inside; 0.95 + 1/3 is clipped to the bound, a move that is kept.
+    assert math.isclose(out[3]["q_diag.1"], 0.95 - 1.0 / 3.0)
+    assert math.isclose(out[4]["q_diag.1"], 1.0)
+    at_bound = local_candidates((q,), {"q_diag": (5.0, 1.0)}, 0.2)
+    assert len(at_bound) == 2 and math.isclose(at_bound[1]["q_diag.1"], 0.8)  # no move at 1.0
+    assert local_candidates((r,), base, 0.1) == local_candidates((r,), base, 0.1)  # no seed
+    with pytest.raises(ValueError, match="--step"):
+        local_candidates((r,), base, 0.0)
