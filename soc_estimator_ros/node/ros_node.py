@@ -10,7 +10,8 @@ Topics, parameters, services and persistence are documented in docs/node.md. In 
 * outputs ``battery/soc`` (``BatteryState``, the one rule of ``messages.estimate_state``),
   ``battery/soc_estimate`` (labelled ``Float64MultiArray``), ``battery/runtime`` (the tracker's
   runtime monitor: time to empty and full, state of power, level; once a second of sample
-  time), ``/diagnostics`` (1 Hz, ``node/diagnostics.py``);
+  time), ``/diagnostics`` (1 Hz, ``node/diagnostics.py``); the two vectors only while some
+  node subscribes to them;
 * stale input: no sample accepted for ``stale_timeout_s`` -> ``battery/soc`` keeps coming at
   ``publish_rate_hz`` (1 Hz when 0) with status UNKNOWN and the last SoC, diagnostics ERROR;
 * run-time control: parameter ``estimator`` (switch), ``reset_soc_to``, service
@@ -34,7 +35,7 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock, ClockType, ROSClock
 from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
@@ -324,7 +325,7 @@ class SocEstimatorNode(Node):
 
     def _on_current(self, msg: Float32 | Float64) -> None:
         assert self.pairer is not None
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = self.clock_ns()
         current_a = core_current_from(float(msg.data), self._current_sign)
         with self._lock:
             paired = self.pairer.add_current(now_ns, current_a)
@@ -333,11 +334,19 @@ class SocEstimatorNode(Node):
 
     def _on_voltage(self, msg: Float32 | Float64) -> None:
         assert self.pairer is not None
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = self.clock_ns()
         with self._lock:
             paired = self.pairer.add_voltage(now_ns, float(msg.data))
         if paired is not None:
             self.process_sample(Sample(paired.stamp_ns, paired.current_a, paired.voltage_v))
+
+    def clock_ns(self) -> int:
+        """The node's ROS clock now (ns). ``Clock.now()`` builds a ``Time`` (4 us a sample
+        here); without a sim-time override ROS time is the system time, read directly."""
+        clock = self.get_clock()
+        if isinstance(clock, ROSClock) and not clock.ros_time_is_active:
+            return time.time_ns()
+        return clock.now().nanoseconds
 
     def process_sample(
         self,
@@ -351,7 +360,7 @@ class SocEstimatorNode(Node):
         ``header`` (the input's, copied to the output; None builds one from the stamp),
         ``location`` and ``serial_number`` (used when the parameters are empty).
         """
-        clock_ns = self.get_clock().now().nanoseconds
+        clock_ns = self.clock_ns()
         now_ns = clock_ns if self._stale_vs_clock else None
         with self._lock:
             # Another pack's first sample is estimated with that pack's health.
@@ -421,17 +430,21 @@ class SocEstimatorNode(Node):
         if not self._pending_estimate:
             return  # between filter steps: the estimate vector is the last step's
         self._pending_estimate = False
-        health = self.tracker.health
-        self._est_pub.publish(
-            estimate_msg(
-                last.stamp_ns / NS_PER_S,
-                est,
-                None if health is None else health.fields(),
-                self.tracker.last_cells,
+        # The vectors are built and published only for a listener: a publish costs rclpy and
+        # the DDS as much CPU with no subscriber as with one (docs/benchmarks.md).
+        if self._est_pub.get_subscription_count():
+            health = self.tracker.health
+            self._est_pub.publish(
+                estimate_msg(
+                    last.stamp_ns / NS_PER_S,
+                    est,
+                    None if health is None else health.fields(),
+                    self.tracker.last_cells,
+                )
             )
-        )
         if self._pending_runtime is not None:
-            self._runtime_pub.publish(runtime_msg(self._pending_runtime))
+            if self._runtime_pub.get_subscription_count():
+                self._runtime_pub.publish(runtime_msg(self._pending_runtime))
             self._pending_runtime = None
 
     def _learned_health(self) -> tuple[float | None, float | None]:

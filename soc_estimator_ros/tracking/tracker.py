@@ -325,8 +325,12 @@ class Tracker:
             self._count_missing(t_s - t_prev)
         self._t_sample_s = t_s
         self.samples_used += 1
-        self.last_sample = Sample(
-            s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present, s.cell_voltage_v
+        self.last_sample = (
+            s  # the same values: no copy on most samples
+            if temperature_c is s.temperature_c
+            else Sample(
+                s.stamp_ns, s.current_a, s.voltage_v, temperature_c, s.present, s.cell_voltage_v
+            )
         )
         self.last_accept_steady_s = self._steady()
         self.revision += 1

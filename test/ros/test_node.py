@@ -35,7 +35,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
-from std_msgs.msg import Float32  # noqa: E402
+from std_msgs.msg import Float32, Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
@@ -982,3 +982,47 @@ def test_a_filter_rate_publishes_every_sample_and_estimates_at_its_rate(make_har
     ]
     live = np.array([m.percentage for m in h.soc])
     assert np.max(np.abs(live - np.array(offline))) < 1e-6  # percentage is float32
+
+
+def test_the_vectors_are_built_only_while_someone_subscribes(make_harness, sla_run, monkeypatch):
+    """Nobody on ``battery/soc_estimate`` and ``battery/runtime``: neither vector is built nor
+    published (docs/node.md); ``battery/soc`` still answers every sample, and a subscriber that
+    comes back receives from the next filter step."""
+    import soc_estimator_ros.node.ros_node as ros_node
+
+    n = 50  # 5 s of the 10 Hz run: runtime predictions (once a second) fall in each part
+    run = sla_run.window(0, 3 * n)
+    msgs = series_msgs(run, 3 * n)
+    h = make_harness(estimator="hybrid", initial_soc=repr(float(run.soc_ref[0])))
+    built = {"estimate": 0, "runtime": 0}
+
+    def counted(name: str, make: Any) -> Any:
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            built[name] += 1
+            return make(*args, **kwargs)
+
+        return wrapper
+
+    monkeypatch.setattr(ros_node, "estimate_msg", counted("estimate", ros_node.estimate_msg))
+    monkeypatch.setattr(ros_node, "runtime_msg", counted("runtime", ros_node.runtime_msg))
+    h.send(msgs[:n])
+    assert built["estimate"] == n and len(h.est) == n  # listened to: one per sample
+    assert built["runtime"] >= 4 and len(h.runtime) == built["runtime"]
+
+    vectors = ("battery/soc_estimate", "battery/runtime")
+    subs = [s for s in h.io.subscriptions if s.topic_name.endswith(vectors)]
+    assert len(subs) == 2
+    for sub in subs:
+        h.io.destroy_subscription(sub)
+    pubs = (h.node._est_pub, h.node._runtime_pub)
+    assert h.spin_until(lambda: all(p.get_subscription_count() == 0 for p in pubs), 10.0)
+    before = dict(built)
+    h.send(msgs[n : 2 * n], expect_outputs=False)
+    assert h.spin_until(lambda: len(h.soc) == 2 * n, 10.0)  # battery/soc answered them all
+    assert built == before  # nothing built for nobody
+
+    h.io.create_subscription(Float64MultiArray, "battery/soc_estimate", h.est.append, RELIABLE)
+    assert h.spin_until(lambda: h.node._est_pub.get_subscription_count() == 1, 10.0)
+    h.send(msgs[2 * n :], expect_outputs=False)
+    assert h.spin_until(lambda: len(h.est) == 2 * n, 10.0)  # every sample of the third part
+    assert built["runtime"] == before["runtime"]  # still nobody on battery/runtime
