@@ -17,7 +17,8 @@ Two kinds of recordings, each with its split stated (never report a tuning on it
   ``split: tuning|validation``; the bundled ``bags/*_validation_*`` are a subset.
 
     python benchmarks/studies/do_no_harm.py --real ../shared/real-data [--estimators hybrid]
-    python benchmarks/studies/do_no_harm.py --corpus /work/corpus --split validation
+    python benchmarks/studies/do_no_harm.py --corpus /work/corpus --split validation \
+        [--params sla_tuned.yaml]   # a tuned file in place of the bundled one of its chemistry
 """
 
 from __future__ import annotations
@@ -135,8 +136,9 @@ def panasonic_cases(
     return cases
 
 
-def corpus_cases(root: Path) -> list[Case]:
-    """Missions with ``bag.yaml`` (``split``) under ``root``, with their bundled file."""
+def corpus_cases(root: Path, params: BatteryParams | None = None) -> list[Case]:
+    """Missions with ``bag.yaml`` (``split``) under ``root``, with their bundled file, or
+    ``params`` for the missions of its chemistry (a tuned file, ``soc_tune --output``)."""
     cases = []
     for meta in sorted(root.glob("*/bag.yaml")):
         info = yaml.safe_load(meta.read_text()) or {}
@@ -144,6 +146,8 @@ def corpus_cases(root: Path) -> list[Case]:
         if s.soc_ref is None:
             continue
         battery = load_battery_params(battery_file_for(s))
+        if params is not None and params.chemistry == battery.chemistry:
+            battery = params
         cases.append(Case(meta.parent.name, str(info.get("split", "?")), s, s.soc_ref, battery))
     return cases
 
@@ -170,6 +174,11 @@ def main() -> int:
         "--start-std", type=float, default=INITIAL_SOC_STD, help="std of the (true) start"
     )
     ap.add_argument(
+        "--params",
+        type=Path,
+        help="a battery file for --corpus' missions of its chemistry (default: the bundled)",
+    )
+    ap.add_argument(
         "--tuning",
         action="append",
         default=[],
@@ -184,7 +193,8 @@ def main() -> int:
         else:
             cases += panasonic_cases(args.real, args.activation_energy, args.extrapolation_scale_c)
     if args.corpus is not None:
-        cases += corpus_cases(args.corpus)
+        params = None if args.params is None else load_battery_params(args.params)
+        cases += corpus_cases(args.corpus, params)
     cases = [c for c in cases if not args.split or c.split == args.split]
     tuning = {k: float(v) for k, v in (t.split("=", 1) for t in args.tuning)} or None
     jobs = [(c, e, args.start_std, tuning) for c in cases for e in args.estimators.split(",")]

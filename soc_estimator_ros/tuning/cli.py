@@ -194,6 +194,19 @@ def report(cv: CrossValidation, names: list[str], cands: list[dict[str, float]])
     return "\n".join(lines)
 
 
+def _provenance(path: Path) -> list[str]:
+    """The leading comment lines of a battery file (how it was made: ``soc_identify``'s
+    regenerate command, an earlier ``soc_tune``'s), without the schema pointer; kept in the
+    tuned file below its own, so the file says every step that made it."""
+    lines = []
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        if not line.startswith("# Schema:"):
+            lines.append(line)
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -202,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("soc_tune reads local recordings (fetch URLs first)")
         paths = [str(p) for p in inputs]
         battery = load_battery_params(args.params)
+        provenance = _provenance(args.params)
         space = _space(args)
         block0 = battery.filters.get(args.estimator)
         base = make_estimator(args.estimator, battery, 0.5, 0.1, block0).tuning
@@ -242,9 +256,12 @@ def main(argv: list[str] | None = None) -> int:
         return REFUSED
     data = battery_params_to_dict(battery)
     block = dict(battery.filters.get(args.estimator, {}))
-    block.update(
-        {k: v for k, v in apply(base, cands[cv.chosen]).items() if k in {d.key for d in space}}
-    )
+    # Only what the search changed: an entry it left as it was stays as the file had it (given,
+    # or the code default), so soc_identify, which keeps its template's tunings, rewrites the
+    # same file from a tuned template.
+    chosen = apply(base, cands[cv.chosen])
+    touched = {label.partition(".")[0] for label in cands[cv.chosen]}
+    block.update({k: chosen[k] for k in sorted(touched) if chosen[k] != base[k]})
     data.setdefault("filters", {})[args.estimator] = {
         k: list(v) if isinstance(v, tuple) else v for k, v in block.items()
     }
@@ -253,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
         f"# Tuned by soc_tune ({args.estimator}) on {', '.join(names)}: held-out J "
         f"{cv.held_out_score:.3f} vs the file's {cv.file_held_out_score:.3f}.\n"
         f"# Regenerate: {command}\n"
+        + "".join(f"# From {args.params.name}: {line[1:].lstrip()}\n" for line in provenance)
     )
     text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
     args.output.write_text(header + text)

@@ -134,6 +134,13 @@ def test_local_search_moves_the_files_tuning_a_step(excerpts, tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "chosen on all: r 0.3981" in printed, printed
     assert math.isclose(float(load_battery_params(out).filters["t2rc_ukf"]["r"]), 10**-0.4)
+    # The header: soc_tune's command, then how the input file was made (its own header).
+    header = [line for line in out.read_text().splitlines() if line.startswith("#")]
+    assert header[0].startswith("# Tuned by soc_tune (t2rc_ukf) on ")
+    assert header[1].startswith("# Regenerate: soc_tune ")
+    made = [ln for ln in SLA.read_text().splitlines() if ln.startswith("#")]
+    made = [ln for ln in made if not ln.startswith("# Schema:")]
+    assert made and header[2:] == [f"# From bad.yaml: {line[2:]}" for line in made]
 
 
 def test_errors_are_one_line(excerpts, tmp_path, capsys):
