@@ -431,7 +431,8 @@ class SocEstimatorNode(Node):
             return  # between filter steps: the estimate vector is the last step's
         self._pending_estimate = False
         # The vectors are built and published only for a listener: a publish costs rclpy and
-        # the DDS as much CPU with no subscriber as with one (docs/benchmarks.md).
+        # the DDS CPU with no subscriber too, about half of one with a subscriber
+        # (docs/benchmarks.md).
         if self._est_pub.get_subscription_count():
             health = self.tracker.health
             self._est_pub.publish(

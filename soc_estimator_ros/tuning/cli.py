@@ -260,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     # or the code default), so soc_identify, which keeps its template's tunings, rewrites the
     # same file from a tuned template.
     chosen = apply(base, cands[cv.chosen])
-    touched = {label.partition(".")[0] for label in cands[cv.chosen]}
+    touched = {d.key for d in space if d.label in cands[cv.chosen]}
     block.update({k: chosen[k] for k in sorted(touched) if chosen[k] != base[k]})
     data.setdefault("filters", {})[args.estimator] = {
         k: list(v) if isinstance(v, tuple) else v for k, v in block.items()

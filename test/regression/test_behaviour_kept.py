@@ -28,6 +28,7 @@ import pytest
 from conftest import REPO_ROOT, bag_path
 
 from soc_estimator_ros.estimators import ESTIMATORS
+from soc_estimator_ros.estimators.hybrid import Hybrid
 from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.replay.run import replay_estimator
 
@@ -76,7 +77,7 @@ def test_every_estimator_gives_what_it_gave_before(bag: str) -> None:
                 "resistance_std_frac": 0.0,
                 "update_charge_c_rate_max": math.inf,
                 "ocv_soc_resolution_max": 0.0,
-                "q_diag": (1.0e-10, 1.0e-6, 1.0e-7),
+                "q_diag": Hybrid.default_tuning["q_diag"],
             }
             filters["hybrid"] = {**filters.get("hybrid", {}), **off}
             b = replace(battery, filters=filters)
