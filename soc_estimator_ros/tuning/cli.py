@@ -2,15 +2,17 @@
 
     soc_tune RECORDING [RECORDING ...] --params FILE --output FILE [--estimator hybrid]
              [--space KEY=LO:HI[:log] ...] [--search random|local] [--trials 32]
-             [--step 0.15] [--folds 3] [--seed 0] [--wrong-start 0.3] [--jobs N]
+             [--step 0.15] [--rounds 1] [--folds 3] [--seed 0] [--wrong-start 0.3] [--jobs N]
              [--scheduler ADDRESS|local]
 
 RECORDING: bags or CSVs with a reference SoC, or directories of bags (as ``soc_replay``).
 Every candidate tuning (the file's own, then ``--trials`` random draws from the space, or with
 ``--search local`` the file's tuning moved by ``--step`` of each dimension's range either way,
-``search.py``) is scored on every recording (``objective.py``); the folds choose and judge as
-``crossval.py`` says. Printed: each fold's held-out recordings, the tuning chosen on the
-others and its held-out score beside the file's; then the tuning chosen on all recordings.
+``search.py``, repeated from the best move for up to ``--rounds`` rounds, ``compass.py``) is
+scored on every recording (``objective.py``); the folds choose and judge as ``crossval.py``
+says (a fold walks the whole local search on its training recordings). Printed: each fold's
+held-out recordings, the tuning chosen on the others and its held-out score beside the file's;
+then the tuning chosen on all recordings.
 It is written to ``--output`` (the input file with that estimator's block updated) only when
 its held-out score is no worse than the file's; otherwise nothing is written and the exit
 status is 3. The same inputs and seed give the same tuning (exit 0) or the same refusal.
@@ -37,6 +39,7 @@ from ..recordings import read_recording
 from ..replay.cli import expand_inputs
 from ..replay.fleet import run_on_dask
 from ..replay.outputs import ProgressBar
+from .compass import ScoreTable, compass_cross_validate
 from .crossval import CrossValidation, cross_validate, folds
 from .objective import (
     COVERAGE_BAND,
@@ -51,7 +54,6 @@ from .search import (
     Dimension,
     apply,
     candidates,
-    local_candidates,
     parse_dimension,
 )
 
@@ -125,6 +127,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.15,
         help="local search: the move, as a fraction of each dimension's range (default 0.15)",
     )
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="local search: repeat the step from the best move up to this many times, "
+        "stopping when no move improves (default 1)",
+    )
     ap.add_argument("--folds", type=int, default=3, help="cross-validation folds (default 3)")
     ap.add_argument("--seed", type=int, default=0, help="candidates and folds (default 0)")
     ap.add_argument(
@@ -172,7 +181,12 @@ def _fmt(values: dict[str, float]) -> str:
     return ", ".join(f"{k} {v:.4g}" for k, v in values.items()) or "the file's"
 
 
-def report(cv: CrossValidation, names: list[str], cands: list[dict[str, float]]) -> str:
+def report(
+    cv: CrossValidation, names: list[str], cands: list[dict[str, float]], moves: list[int]
+) -> str:
+    """The folds and the verdict; ``moves``: each local walk's moves (folds', then all's)."""
+    walked = [f" after {m} move{'s' if m != 1 else ''}" for m in moves]
+    walked = walked or [""] * (len(cv.folds) + 1)
     lo, hi = COVERAGE_BAND
     lines = [
         f"objective J = MAE + max/2 + {COVERAGE_WEIGHT:g} x distance of the ±2σ coverage from "
@@ -183,12 +197,13 @@ def report(cv: CrossValidation, names: list[str], cands: list[dict[str, float]])
         held = ", ".join(names[i] for i in f.held_out)
         lines += [
             f"fold {k}: held out {held}",
-            f"  chosen on the others: {_fmt(cands[f.chosen])} (J {f.train_score:.3f})",
+            f"  chosen on the others{walked[k - 1]}: {_fmt(cands[f.chosen])} "
+            f"(J {f.train_score:.3f})",
             f"  held out: tuned J {f.held_out_score:.3f}, file's J {f.file_held_out_score:.3f}",
         ]
     lines += [
         f"held-out mean: tuned J {cv.held_out_score:.3f}, file's J {cv.file_held_out_score:.3f}",
-        f"chosen on all: {_fmt(cands[cv.chosen])} (J {cv.chosen_score:.3f}; file's "
+        f"chosen on all{walked[-1]}: {_fmt(cands[cv.chosen])} (J {cv.chosen_score:.3f}; file's "
         f"{cv.file_score:.3f})",
     ]
     return "\n".join(lines)
@@ -230,23 +245,31 @@ def main(argv: list[str] | None = None) -> int:
         for p in paths:
             if read_recording(Path(p)).soc_ref is None:
                 raise ValueError(f"{p}: no reference SoC to tune on")
+
+        def evaluate(batch: list[dict[str, float]]) -> np.ndarray:
+            tasks: list[Task] = [
+                (p, str(args.params), args.estimator, c, args.wrong_start)
+                for c in batch
+                for p in paths
+            ]
+            return np.array(_evaluate(tasks, args)).reshape(len(batch), len(paths))
+
+        table = ScoreTable(evaluate)
         if args.search == "local":
-            cands = local_candidates(space, base, args.step)
+            cv, moves = compass_cross_validate(
+                table, space, base, args.step, args.rounds, len(paths), args.folds, args.seed
+            )
         elif args.trials < 1:
             raise ValueError("--trials must be >= 1")
         else:
-            cands = candidates(space, args.trials, args.seed)
-        tasks: list[Task] = [
-            (p, str(args.params), args.estimator, c, args.wrong_start) for c in cands for p in paths
-        ]
-        values = _evaluate(tasks, args)
-        scores = np.array(values).reshape(len(cands), len(paths))
-        cv = cross_validate(scores, args.folds, args.seed)
+            table.indices(candidates(space, args.trials, args.seed))
+            cv, moves = cross_validate(table.scores, args.folds, args.seed), []
+        cands = table.candidates
     except (SocEstimatorError, ValueError, KeyError, IndexError, TypeError, OSError) as exc:
         print(f"soc_tune: error: {exc}", file=sys.stderr)
         return 2
     names = [Path(p).name for p in paths]
-    print(report(cv, names, cands))
+    print(report(cv, names, cands, moves))
     if not cv.accepted:
         print(
             f"soc_tune: refused: the tuning's held-out J {cv.held_out_score:.3f} is worse than "

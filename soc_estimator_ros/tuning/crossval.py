@@ -55,27 +55,46 @@ class CrossValidation:
 
 def cross_validate(scores: np.ndarray, k: int, seed: int) -> CrossValidation:
     """:class:`CrossValidation` of ``scores[c, r]`` (candidate 0 the file's tuning; a
-    non-finite score counts as the worst)."""
-    s = np.where(np.isfinite(scores), scores, np.inf)
+    non-finite score counts as the worst), each fold choosing the candidate with the lowest
+    mean on its training recordings."""
+    s = finite(scores)
+    fold_list = folds(s.shape[1], k, seed)
+    chosen = [int(np.argmin(s[:, training(f, s.shape[1])].mean(axis=1))) for f in fold_list]
+    return judge(s, fold_list, chosen, int(np.argmin(s.mean(axis=1))))
+
+
+def finite(scores: np.ndarray) -> np.ndarray:
+    """``scores`` with every non-finite entry (a tuning that broke the filter) the worst."""
+    return np.where(np.isfinite(scores), scores, np.inf)
+
+
+def training(held_out: np.ndarray, n_recordings: int) -> np.ndarray:
+    """The recordings a fold chooses on: all but its held-out ones."""
+    return np.setdiff1d(np.arange(n_recordings), held_out)
+
+
+def judge(
+    scores: np.ndarray, fold_list: list[np.ndarray], fold_chosen: list[int], chosen: int
+) -> CrossValidation:
+    """The verdict on ``scores[c, r]`` (finite or inf) when fold ``i`` chose candidate
+    ``fold_chosen[i]`` on its training recordings and ``chosen`` was chosen on all: each
+    fold's choice is scored on its held-out recordings beside the file's (candidate 0)."""
+    s = scores
     n_rec = s.shape[1]
     out = []
     held, held_file = np.empty(n_rec), np.empty(n_rec)
-    for f in folds(n_rec, k, seed):
-        train = np.setdiff1d(np.arange(n_rec), f)
-        means = s[:, train].mean(axis=1)
-        c = int(np.argmin(means))
+    for f, c in zip(fold_list, fold_chosen, strict=True):
         held[f], held_file[f] = s[c, f], s[0, f]
         out.append(
             Fold(
                 tuple(int(i) for i in f),
                 c,
-                float(means[c]),
+                float(s[c, training(f, n_rec)].mean()),
                 float(s[c, f].mean()),
                 float(s[0, f].mean()),
             )
         )
     all_means = s.mean(axis=1)
-    chosen = int(np.argmin(all_means))
     return CrossValidation(
         tuple(out),
         chosen,

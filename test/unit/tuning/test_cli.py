@@ -132,7 +132,7 @@ def test_local_search_moves_the_files_tuning_a_step(excerpts, tmp_path, capsys):
     args += ["--step", "0.8", "--folds", "2", "--wrong-start", "0", "--jobs", "1"]
     assert main(args) == 0
     printed = capsys.readouterr().out
-    assert "chosen on all: r 0.3981" in printed, printed
+    assert "chosen on all after 1 move: r 0.3981" in printed, printed
     assert math.isclose(float(load_battery_params(out).filters["t2rc_ukf"]["r"]), 10**-0.4)
     # The header: soc_tune's command, then how the input file was made (its own header).
     header = [line for line in out.read_text().splitlines() if line.startswith("#")]
