@@ -128,7 +128,9 @@ def local_candidates(
 ) -> list[dict[str, float]]:
     """The file's tuning (``{}``) and, for each dimension, the file's value moved by ``step``
     of the box down and up (within the box; a move that changes nothing is left out), by
-    label: at most ``2 len(space)`` candidates, the same for every seed."""
+    label: at most ``2 len(space)`` candidates, the same for every seed. A file's value
+    outside the box moves a step toward it and not beyond the value (the LFP file's
+    ``r_per_a`` of 0.1 V/A lies above the default box): a local search never jumps."""
     if not 0.0 < step <= 1.0:
         raise ValueError(f"--step {step}: expected a fraction of each range in (0, 1]")
     out: list[dict[str, float]] = [{}]
@@ -136,9 +138,10 @@ def local_candidates(
         v0 = value_of(base, d)
         if d.log and v0 <= 0.0:
             raise ValueError(f"{d.label}: the file's value {v0} cannot move on a log range")
-        u0 = min(max(d.position(v0), 0.0), 1.0)
+        u0 = d.position(v0)
+        lo, hi = min(u0, 0.0), max(u0, 1.0)
         for u in (u0 - step, u0 + step):
-            v = d.at(min(max(u, 0.0), 1.0))
+            v = d.at(min(max(u, lo), hi))
             if not math.isclose(v, v0, rel_tol=1e-9, abs_tol=0.0):
                 out.append({d.label: v})
     return out

@@ -60,5 +60,8 @@ def test_local_candidates_move_one_dimension_a_step_either_way_within_the_box():
     at_bound = local_candidates((q,), {"q_diag": (5.0, 1.0)}, 0.2)
     assert len(at_bound) == 2 and math.isclose(at_bound[1]["q_diag.1"], 0.8)  # no move at 1.0
     assert local_candidates((r,), base, 0.1) == local_candidates((r,), base, 0.1)  # no seed
+    # Above the box (r = 10, a third of the box beyond its top): a step down toward it only.
+    above = local_candidates((r,), {"r": 10.0}, 0.2)
+    assert len(above) == 2 and math.isclose(above[1]["r"], 10 ** (1 - 0.6))
     with pytest.raises(ValueError, match="--step"):
         local_candidates((r,), base, 0.0)
