@@ -18,7 +18,7 @@ Two kinds of recordings, each with its split stated (never report a tuning on it
 
     python benchmarks/studies/do_no_harm.py --real ../shared/real-data [--estimators hybrid]
     python benchmarks/studies/do_no_harm.py --corpus /work/corpus --split validation \
-        [--params sla_tuned.yaml]   # a tuned file in place of the bundled one of its chemistry
+        [--chemistry sla] [--params sla_tuned.yaml]   # a tuned file in place of the bundled one
 """
 
 from __future__ import annotations
@@ -161,6 +161,7 @@ def main() -> int:
     ap.add_argument("--real", type=Path, help="the real-data directory (Panasonic)")
     ap.add_argument("--corpus", type=Path, help="a directory of corpus missions")
     ap.add_argument("--split", default="", help="only cases of this split")
+    ap.add_argument("--chemistry", default="", help="only cases of this chemistry (sla, lfp)")
     ap.add_argument("--estimators", default="hybrid")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument(
@@ -196,6 +197,7 @@ def main() -> int:
         params = None if args.params is None else load_battery_params(args.params)
         cases += corpus_cases(args.corpus, params)
     cases = [c for c in cases if not args.split or c.split == args.split]
+    cases = [c for c in cases if not args.chemistry or c.battery.chemistry == args.chemistry]
     tuning = {k: float(v) for k, v in (t.split("=", 1) for t in args.tuning)} or None
     jobs = [(c, e, args.start_std, tuning) for c in cases for e in args.estimators.split(",")]
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
