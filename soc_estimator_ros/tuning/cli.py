@@ -257,7 +257,15 @@ def main(argv: list[str] | None = None) -> int:
         table = ScoreTable(evaluate)
         if args.search == "local":
             cv, moves = compass_cross_validate(
-                table, space, base, args.step, args.rounds, len(paths), args.folds, args.seed
+                table,
+                space,
+                base,
+                args.step,
+                args.rounds,
+                len(paths),
+                args.folds,
+                args.seed,
+                log=lambda line: print(f"soc_tune: {line}", file=sys.stderr, flush=True),
             )
         elif args.trials < 1:
             raise ValueError("--trials must be >= 1")

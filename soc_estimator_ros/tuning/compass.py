@@ -85,6 +85,10 @@ def _neighbours(
     return out
 
 
+def _describe(point: Values) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in sorted(point.items())) or "the file's"
+
+
 def compass_cross_validate(
     table: ScoreTable,
     space: Sequence[Dimension],
@@ -94,10 +98,12 @@ def compass_cross_validate(
     n_recordings: int,
     k: int,
     seed: int,
+    log: Callable[[str], None] = lambda line: None,
 ) -> tuple[CrossValidation, list[int]]:
     """The walks of the ``k`` folds and the one on all recordings from the file's tuning
     (``table``'s row 0 after this call); returns the verdict and each walk's number of moves
-    (folds first, the walk on all last)."""
+    (folds first, the walk on all last). ``log`` gets a line per round: where each walk
+    went, so a long search that is stopped still says how far it came."""
     if rounds < 1:
         raise ValueError(f"--rounds {rounds}: expected >= 1")
     fold_list = folds(n_recordings, k, seed)
@@ -106,7 +112,8 @@ def compass_cross_validate(
     moves = [0] * len(trains)
     active = [True] * len(trains)
     table.indices([{}])
-    for _ in range(rounds):
+    names = [f"fold {i + 1}" for i in range(k)] + ["all"]
+    for r in range(rounds):
         walking = [i for i, a in enumerate(active) if a]
         if not walking:
             break
@@ -121,5 +128,11 @@ def compass_cross_validate(
             else:
                 points[i] = around[i][best]
                 moves[i] += 1
+        log(
+            f"round {r + 1}: "
+            + "; ".join(
+                f"{names[i]} {_describe(points[i]) if active[i] else 'stopped'}" for i in walking
+            )
+        )
     ends = table.indices(points)
     return judge(table.scores, fold_list, ends[:-1], ends[-1]), moves

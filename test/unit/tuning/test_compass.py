@@ -36,8 +36,13 @@ def test_the_walk_moves_a_step_a_round_until_no_move_is_better():
     0.6 worse and stops. The folds walk the same way, so the table holds the seven positions
     0..0.6 once each (a move back down is the tuning it came from, not scored again)."""
     table, calls = table_for([0.5] * 6, [1.0] * 6)
-    cv, moves = compass_cross_validate(table, (R,), BASE, 0.1, 10, 6, 3, seed=0)
+    lines: list[str] = []
+    cv, moves = compass_cross_validate(table, (R,), BASE, 0.1, 10, 6, 3, seed=0, log=lines.append)
     assert moves == [5, 5, 5, 5]
+    assert len(lines) == 6 and lines[0] == "round 1: " + "; ".join(
+        f"{w} r {10**-2.7:.4g}" for w in ("fold 1", "fold 2", "fold 3", "all")
+    )
+    assert lines[-1] == "round 6: fold 1 stopped; fold 2 stopped; fold 3 stopped; all stopped"
     assert math.isclose(table.candidates[cv.chosen]["r"], 10**-1.5, rel_tol=1e-9)
     assert len(table.candidates) == 7 and sum(calls) == 7
     assert cv.held_out_score < 1e-20 and cv.file_held_out_score == 0.25 and cv.accepted
