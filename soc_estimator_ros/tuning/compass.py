@@ -122,7 +122,7 @@ def compass_cross_validate(
         scores = table.scores
         for i in walking:
             mine, rows = rows[: len(around[i])], rows[len(around[i]) :]
-            best = int(np.argmin(scores[np.ix_(mine, trains[i])].mean(axis=1)))
+            best = int(np.argmin(scores[np.ix_(np.array(mine), trains[i])].mean(axis=1)))
             if best == 0:  # around[i][0] is the point itself: no move is strictly better
                 active[i] = False
             else:
