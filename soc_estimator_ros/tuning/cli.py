@@ -54,6 +54,7 @@ from .search import (
     Dimension,
     apply,
     candidates,
+    describe,
     parse_dimension,
 )
 
@@ -177,10 +178,6 @@ def _evaluate(tasks: list[Task], args: argparse.Namespace) -> list[float]:
     return out
 
 
-def _fmt(values: dict[str, float]) -> str:
-    return ", ".join(f"{k} {v:.4g}" for k, v in values.items()) or "the file's"
-
-
 def report(
     cv: CrossValidation, names: list[str], cands: list[dict[str, float]], moves: list[int]
 ) -> str:
@@ -197,13 +194,13 @@ def report(
         held = ", ".join(names[i] for i in f.held_out)
         lines += [
             f"fold {k}: held out {held}",
-            f"  chosen on the others{walked[k - 1]}: {_fmt(cands[f.chosen])} "
+            f"  chosen on the others{walked[k - 1]}: {describe(cands[f.chosen])} "
             f"(J {f.train_score:.3f})",
             f"  held out: tuned J {f.held_out_score:.3f}, file's J {f.file_held_out_score:.3f}",
         ]
     lines += [
         f"held-out mean: tuned J {cv.held_out_score:.3f}, file's J {cv.file_held_out_score:.3f}",
-        f"chosen on all{walked[-1]}: {_fmt(cands[cv.chosen])} (J {cv.chosen_score:.3f}; file's "
+        f"chosen on all{walked[-1]}: {describe(cands[cv.chosen])} (J {cv.chosen_score:.3f}; file's "
         f"{cv.file_score:.3f})",
     ]
     return "\n".join(lines)

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from .crossval import CrossValidation, folds, judge, training
-from .search import Dimension, apply, local_candidates, value_of
+from .crossval import CrossValidation, finite, folds, judge, training
+from .search import Dimension, apply, describe, local_candidates, value_of
 
 Values = dict[str, float]
 
@@ -62,8 +62,7 @@ class ScoreTable:
     @property
     def scores(self) -> np.ndarray:
         """``scores[c, r]``, non-finite (a tuning that broke the filter) as the worst."""
-        s = np.array(self._rows, dtype=float)
-        return np.where(np.isfinite(s), s, np.inf)
+        return finite(np.array(self._rows, dtype=float))
 
 
 def _neighbours(
@@ -83,10 +82,6 @@ def _neighbours(
             }
         )
     return out
-
-
-def _describe(point: Values) -> str:
-    return ", ".join(f"{k} {v:.4g}" for k, v in sorted(point.items())) or "the file's"
 
 
 def compass_cross_validate(
@@ -131,7 +126,7 @@ def compass_cross_validate(
         log(
             f"round {r + 1}: "
             + "; ".join(
-                f"{names[i]} {_describe(points[i]) if active[i] else 'stopped'}" for i in walking
+                f"{names[i]} {describe(points[i]) if active[i] else 'stopped'}" for i in walking
             )
         )
     ends = table.indices(points)

@@ -111,6 +111,11 @@ def apply(base: Mapping[str, Any], values: Mapping[str, float]) -> dict[str, Any
     return out
 
 
+def describe(values: Mapping[str, float]) -> str:
+    """A candidate as printed: ``r 0.05, q_diag.0 3.981e-10``, or "the file's" for ``{}``."""
+    return ", ".join(f"{k} {v:.4g}" for k, v in values.items()) or "the file's"
+
+
 def candidates(space: Sequence[Dimension], n: int, seed: int) -> list[dict[str, float]]:
     """The file's tuning (``{}``: nothing changed) and ``n`` draws, by label."""
     rng = np.random.default_rng(seed)
