@@ -3,7 +3,7 @@
     soc_tune RECORDING [RECORDING ...] --params FILE --output FILE [--estimator hybrid]
              [--space KEY=LO:HI[:log] ...] [--search random|local] [--trials 32]
              [--step 0.15] [--rounds 1] [--folds 3] [--seed 0] [--wrong-start 0.3] [--jobs N]
-             [--scheduler ADDRESS|local]
+             [--scheduler ADDRESS|local] [--cache FILE]
 
 RECORDING: bags or CSVs with a reference SoC, or directories of bags (as ``soc_replay``).
 Every candidate tuning (the file's own, then ``--trials`` random draws from the space, or with
@@ -12,7 +12,9 @@ Every candidate tuning (the file's own, then ``--trials`` random draws from the 
 scored on every recording (``objective.py``); the folds choose and judge as ``crossval.py``
 says (a fold walks the whole local search on its training recordings). Printed: each fold's
 held-out recordings, the tuning chosen on the others and its held-out score beside the file's;
-then the tuning chosen on all recordings.
+then the tuning chosen on all recordings. ``--cache FILE`` keeps every score on disk
+(``cache.py``): the same command run again, after a stop or with more ``--rounds``, reads the
+scores it has and computes only the rest.
 It is written to ``--output`` (the input file with that estimator's block updated) only when
 its held-out score is no worse than the file's; otherwise nothing is written and the exit
 status is 3. The same inputs and seed give the same tuning (exit 0) or the same refusal.
@@ -25,6 +27,7 @@ import math
 import os
 import shlex
 import sys
+from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from functools import cache
 from pathlib import Path
@@ -39,6 +42,7 @@ from ..recordings import read_recording
 from ..replay.cli import expand_inputs
 from ..replay.fleet import run_on_dask
 from ..replay.outputs import ProgressBar
+from .cache import ScoreCache, context_of
 from .compass import ScoreTable, compass_cross_validate
 from .crossval import CrossValidation, cross_validate, folds
 from .objective import (
@@ -146,6 +150,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--scheduler", metavar="ADDRESS", help="a Dask cluster, or 'local'")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        metavar="FILE",
+        help="keep every score in FILE and read the ones it has: a stopped or longer search "
+        "resumes (made for other inputs: refused)",
+    )
     return ap
 
 
@@ -157,25 +168,40 @@ def _space(args: argparse.Namespace) -> tuple[Dimension, ...]:
     return DEFAULT_SPACES[args.estimator]
 
 
-def _evaluate(tasks: list[Task], args: argparse.Namespace) -> list[float]:
+def _evaluate(
+    tasks: list[Task], args: argparse.Namespace, done: Callable[[int, float], None]
+) -> None:
+    """Score every task: ``done(k, score)`` for each, in order, as it arrives (from a Dask
+    cluster, all once the last has)."""
     bar = ProgressBar(f"{len(tasks)} runs", prog="soc_tune")
     show = sys.stderr.isatty() if args.progress is None else args.progress
     if args.scheduler is not None:
-        return run_on_dask(_score, tasks, args.scheduler, args.jobs)
+        for k, value in enumerate(run_on_dask(_score, tasks, args.scheduler, args.jobs)):
+            done(k, value)
+        return
     if args.jobs <= 1:
-        out = []
-        for k, t in enumerate(tasks):
-            out.append(_score(t))
-            if show:
-                bar(k + 1, len(tasks))
-        return out
-    out = []
+        results: Iterable[float] = map(_score, tasks)
+        _collect(results, len(tasks), done, bar if show else None)
+        return
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        for k, value in enumerate(pool.map(_score, tasks, chunksize=1)):
-            out.append(value)
-            if show:
-                bar(k + 1, len(tasks))
-    return out
+        _collect(pool.map(_score, tasks, chunksize=1), len(tasks), done, bar if show else None)
+
+
+def _collect(
+    results: Iterable[float],
+    n: int,
+    done: Callable[[int, float], None],
+    bar: Callable[[int, int], None] | None,
+) -> None:
+    for k, value in enumerate(results):
+        done(k, value)
+        if bar is not None:
+            bar(k + 1, n)
+
+
+def _note(line: str, skipped: int) -> None:
+    unread = f" ({skipped} unreadable lines skipped)" if skipped else ""
+    print(f"soc_tune: {line}{unread}", file=sys.stderr, flush=True)
 
 
 def report(
@@ -243,13 +269,36 @@ def main(argv: list[str] | None = None) -> int:
             if read_recording(Path(p)).soc_ref is None:
                 raise ValueError(f"{p}: no reference SoC to tune on")
 
+        store = None
+        if args.cache is not None:
+            context = context_of(args.estimator, args.params, paths, args.wrong_start)
+            store = ScoreCache(args.cache, context)
+            _note(f"--cache {args.cache}: {len(store)} tunings scored before", store.skipped)
+
         def evaluate(batch: list[dict[str, float]]) -> np.ndarray:
+            rows = np.empty((len(batch), len(paths)))
+            todo = []
+            for i, c in enumerate(batch):
+                cached = None if store is None else store.get(c)
+                if cached is None:
+                    todo.append(i)
+                else:
+                    rows[i] = cached
             tasks: list[Task] = [
-                (p, str(args.params), args.estimator, c, args.wrong_start)
-                for c in batch
+                (p, str(args.params), args.estimator, batch[i], args.wrong_start)
+                for i in todo
                 for p in paths
             ]
-            return np.array(_evaluate(tasks, args)).reshape(len(batch), len(paths))
+
+            def done(k: int, value: float) -> None:
+                i, r = todo[k // len(paths)], k % len(paths)
+                rows[i, r] = value
+                if store is not None and r == len(paths) - 1:
+                    store.put(batch[i], rows[i])  # its last recording: the row is whole
+
+            if tasks:
+                _evaluate(tasks, args, done)
+            return rows
 
         table = ScoreTable(evaluate)
         if args.search == "local":

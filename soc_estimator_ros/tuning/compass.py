@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from .cache import Key, tuning_key
 from .crossval import CrossValidation, finite, folds, judge, training
 from .search import Dimension, apply, describe, local_candidates, value_of
 
@@ -38,26 +39,21 @@ class ScoreTable:
     def __init__(self, evaluate: Callable[[list[Values]], np.ndarray]) -> None:
         self.candidates: list[Values] = []
         self._rows: list[np.ndarray] = []
-        self._index: dict[tuple[tuple[str, float], ...], int] = {}
+        self._index: dict[Key, int] = {}
         self._evaluate = evaluate
-
-    @staticmethod
-    def _key(values: Values) -> tuple[tuple[str, float], ...]:
-        # Twelve digits: a move down and back up again lands on the same tuning.
-        return tuple(sorted((k, float(f"{v:.12g}")) for k, v in values.items()))
 
     def indices(self, batch: Sequence[Values]) -> list[int]:
         """The rows of ``batch``, scoring the tunings not yet in the table in one call."""
         new = []
         for values in batch:
-            key = self._key(values)
+            key = tuning_key(values)
             if key not in self._index:
                 self._index[key] = len(self.candidates)
                 self.candidates.append(dict(values))
                 new.append(dict(values))
         if new:
             self._rows.extend(np.atleast_2d(self._evaluate(new)))
-        return [self._index[self._key(v)] for v in batch]
+        return [self._index[tuning_key(v)] for v in batch]
 
     @property
     def scores(self) -> np.ndarray:

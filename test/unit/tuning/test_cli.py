@@ -9,6 +9,7 @@ second, so a candidate costs about a second per recording.
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from soc_estimator_ros.estimators import make_estimator
 from soc_estimator_ros.evaluation import accuracy, run_estimator
 from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.recordings import read_battery_bag, read_recording
-from soc_estimator_ros.tuning import score_recording
+from soc_estimator_ros.tuning import cli, score_recording
 from soc_estimator_ros.tuning.cli import main
 from soc_estimator_ros.tuning.objective import Score
 
@@ -163,3 +164,46 @@ def test_errors_are_one_line(excerpts, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and needle in err, err
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_a_cached_search_resumes_and_computes_only_what_it_lacks(
+    excerpts, tmp_path, capsys, monkeypatch
+):
+    """``--cache``: a second run of the same command scores nothing and prints the same
+    report; with the cache's last tuning lost (a run stopped before it), only that tuning's
+    runs are computed again. Counted by wrapping the scoring function (``--jobs 1`` calls it
+    in this process)."""
+    calls = []
+    score = cli._score
+
+    def counted(task):
+        calls.append(task[3])
+        return score(task)
+
+    monkeypatch.setattr(cli, "_score", counted)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        SLA.read_text().replace("\nfilters:\n", "\nfilters:\n  t2rc_ukf: {r: 1.0e-06}\n", 1)
+    )
+    cache = tmp_path / "scores.jsonl"
+    args = [*map(str, excerpts[:2]), "--params", str(bad), "--output", str(tmp_path / "o.yaml")]
+    args += ["--estimator", "t2rc_ukf", "--space", "r=1e-6:10:log", "--search", "local"]
+    args += ["--step", "0.8", "--rounds", "2", "--folds", "2", "--wrong-start", "0"]
+    args += ["--jobs", "1", "--cache", str(cache)]
+    assert main(args) == 0
+    first = capsys.readouterr()
+    # Two rounds: 1e-6 and its one move up by 5.6 decades, 0.398 (round 1); from there down
+    # is 1e-6 again (scored) and up the bound 10 (round 2): 3 tunings on 2 recordings.
+    assert len(calls) == 6 and "0 tunings scored before" in first.err
+    lines = cache.read_text().splitlines()
+    assert len(lines) == 1 + 3
+    calls.clear()
+    assert main(args) == 0
+    second = capsys.readouterr()
+    assert calls == [] and "3 tunings scored before" in second.err
+    assert second.out == first.out
+    cache.write_text("\n".join(lines[:-1]) + "\n")
+    assert main(args) == 0
+    third = capsys.readouterr()
+    assert len(calls) == 2 and third.out == first.out
+    assert json.loads(lines[-1])["values"] == calls[0] == calls[1] == {"r": 10.0}
