@@ -4,7 +4,8 @@ Issue 24's rule: from a correct start, the default estimator's maximum error is 
 1 point above coulomb counting's on the same recording, and its reported +-2 sigma holds the
 true SoC 95 % +- 5 % of the time (after the 10-minute window). Prints, per recording: MAE and
 max of each estimator and of coulomb counting from the same start, the margin (estimator max -
-coulomb max, points; <= 1 is the rule), and the +-2 sigma coverage.
+coulomb max, points; <= 1 is the rule), and the +-2 sigma coverage; then, per estimator and
+split, how many recordings meet each target and the mean MAE beside coulomb counting's.
 
 Two kinds of recordings, each with its split stated (never report a tuning on its own runs):
 
@@ -213,7 +214,29 @@ def main() -> int:
         f"{worst:.2f}; coverage = % of samples with |error| <= 2 sigma, 90-100 the target; "
         f"std = mean reported sigma; start std {args.start_std:g})"
     )
+    for line in summary(rows):
+        print(line)
     return 0
+
+
+def summary(rows: list[dict[str, float | str]]) -> list[str]:
+    """Per estimator and split, the counts issue 24's targets are read as: the rule met
+    (margin <= 1), the coverage in 90-100 %, MAE <= 1 and max <= 3, and the mean MAE beside
+    coulomb counting's."""
+    out = []
+    groups = sorted({(str(r["estimator"]), str(r["split"])) for r in rows})
+    for est, split in groups:
+        g = [r for r in rows if r["estimator"] == est and r["split"] == split]
+        rule = sum(float(r["margin"]) <= 1.0 for r in g)
+        cover = sum(90.0 <= float(r["coverage"]) <= 100.0 for r in g)
+        good = sum(float(r["mae"]) <= 1.0 and float(r["max"]) <= 3.0 for r in g)
+        mae = float(np.mean([float(r["mae"]) for r in g]))
+        cc = float(np.mean([float(r["cc_mae"]) for r in g]))
+        out.append(
+            f"{est} on {split} ({len(g)}): rule met on {rule}, coverage in 90-100 % on {cover}, "
+            f"MAE <= 1 and max <= 3 on {good}; mean MAE {mae:.3f} % (coulomb {cc:.3f} %)"
+        )
+    return out
 
 
 if __name__ == "__main__":

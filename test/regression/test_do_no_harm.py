@@ -17,7 +17,7 @@ from conftest import REPO_ROOT, load_benchmark
 
 DATA = REPO_ROOT.parent / "shared" / "real-data"
 
-pytestmark = pytest.mark.skipif(
+needs_data = pytest.mark.skipif(
     not (DATA / "panasonic18650pf_25C_HPPC.csv").is_file(),
     reason=f"no measured Panasonic cells in {DATA} (../shared/real-data beside the checkout)",
 )
@@ -54,6 +54,7 @@ COLD = [
 ]
 
 
+@needs_data
 @pytest.mark.slow
 @pytest.mark.parametrize("name", COLD)
 def test_hybrid_does_no_harm_outside_its_temperatures(name: str) -> None:
@@ -65,3 +66,21 @@ def test_hybrid_does_no_harm_outside_its_temperatures(name: str) -> None:
     assert row["margin"] <= 1.0, row
     # The issue's coverage target for the reported sigma: 95 % +- 5 %.
     assert 90.0 <= row["coverage"] <= 100.0, row
+
+
+def test_the_summary_counts_each_target_per_estimator_and_split() -> None:
+    """The script's closing lines, on rows whose counts are known: the rule is margin <= 1
+    (1.0 itself meets it), the coverage band is 90-100 % inclusive."""
+    study = load_benchmark("studies/do_no_harm")
+    row = {"estimator": "hybrid", "split": "validation", "cc_mae": 0.5}
+    rows = [
+        {**row, "mae": 0.4, "max": 2.9, "margin": 1.0, "coverage": 90.0},
+        {**row, "mae": 1.6, "max": 6.1, "margin": 5.2, "coverage": 87.5},
+        {**row, "split": "tuning", "mae": 1.0, "max": 3.0, "margin": -0.3, "coverage": 100.0},
+    ]
+    assert study.summary(rows) == [
+        "hybrid on tuning (1): rule met on 1, coverage in 90-100 % on 1, MAE <= 1 and max <= 3 "
+        "on 1; mean MAE 1.000 % (coulomb 0.500 %)",
+        "hybrid on validation (2): rule met on 1, coverage in 90-100 % on 1, MAE <= 1 and max "
+        "<= 3 on 1; mean MAE 1.000 % (coulomb 0.500 %)",
+    ]
