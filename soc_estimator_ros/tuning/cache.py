@@ -87,10 +87,10 @@ class ScoreCache:
         if not path.exists() or path.stat().st_size == 0:
             path.write_text(json.dumps({"context": dict(context)}) + "\n")
             return
-        lines = path.read_text().splitlines()
         try:
+            lines = path.read_text().splitlines()
             found = json.loads(lines[0])["context"]
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError):  # UnicodeDecodeError too: a binary file
             raise ValueError(f"--cache {path}: not a soc_tune cache (first line)") from None
         differ = sorted(k for k in set(found) | set(context) if found.get(k) != context.get(k))
         if differ:

@@ -52,9 +52,10 @@ def test_a_cache_for_other_inputs_is_refused_naming_what_differs(inputs, tmp_pat
     with pytest.raises(ValueError, match=r"estimator, recordings_sha256, wrong_start differ"):
         ScoreCache(path, context_of("t2rc_ukf", params, recs, 0.0))
     other = tmp_path / "other.jsonl"
-    other.write_text("not json\n")
-    with pytest.raises(ValueError, match="not a soc_tune cache"):
-        ScoreCache(other, context_of("hybrid", params, recs, 0.3))
+    for text in (b"not json\n", b"\xff\xfe\x00binary"):
+        other.write_bytes(text)
+        with pytest.raises(ValueError, match=f"--cache {other}: not a soc_tune cache"):
+            ScoreCache(other, context_of("hybrid", params, recs, 0.3))
 
 
 def test_a_line_cut_short_by_a_stop_is_skipped_and_counted(inputs, tmp_path):
