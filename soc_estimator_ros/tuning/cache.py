@@ -37,27 +37,30 @@ def tuning_key(values: Mapping[str, float]) -> Key:
     return tuple(sorted((k, float(f"{v:.12g}")) for k, v in values.items()))
 
 
-def _sha256(path: Path) -> str:
-    """The digest of a file, or of a directory's files (a bag: its storage and metadata) by
-    their paths relative to it, in sorted order."""
+def _digest(root: Path, files: Sequence[Path]) -> str:
+    """The SHA-256 of ``files`` in the order given, each after its path relative to ``root``
+    (none for ``root`` itself: a single file is its bytes alone)."""
     h = hashlib.sha256()
-    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
     for f in files:
-        if f != path:
-            h.update(str(f.relative_to(path)).encode() + b"\0")
+        if f != root:
+            h.update(str(f.relative_to(root)).encode() + b"\0")
         with f.open("rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 h.update(block)
     return h.hexdigest()
 
 
+def _sha256(path: Path) -> str:
+    """The digest of a file, or of a directory's files (a bag: its storage and metadata) in
+    sorted order."""
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    return _digest(path, files)
+
+
 def source_digest() -> str:
     """The SHA-256 of the package's Python source (``soc_estimator_ros/**/*.py``)."""
     root = Path(__file__).resolve().parents[1]
-    h = hashlib.sha256()
-    for f in sorted(root.rglob("*.py")):
-        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
-    return h.hexdigest()
+    return _digest(root, sorted(root.rglob("*.py")))
 
 
 def context_of(

@@ -199,9 +199,9 @@ def _collect(
             bar(k + 1, n)
 
 
-def _note(line: str, skipped: int) -> None:
-    unread = f" ({skipped} unreadable lines skipped)" if skipped else ""
-    print(f"soc_tune: {line}{unread}", file=sys.stderr, flush=True)
+def _note(line: str) -> None:
+    """A progress line on stderr (the report goes to stdout)."""
+    print(f"soc_tune: {line}", file=sys.stderr, flush=True)
 
 
 def report(
@@ -273,7 +273,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.cache is not None:
             context = context_of(args.estimator, args.params, paths, args.wrong_start)
             store = ScoreCache(args.cache, context)
-            _note(f"--cache {args.cache}: {len(store)} tunings scored before", store.skipped)
+            unread = f" ({store.skipped} unreadable lines skipped)" if store.skipped else ""
+            _note(f"--cache {args.cache}: {len(store)} tunings scored before{unread}")
 
         def evaluate(batch: list[dict[str, float]]) -> np.ndarray:
             rows = np.empty((len(batch), len(paths)))
@@ -311,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
                 len(paths),
                 args.folds,
                 args.seed,
-                log=lambda line: print(f"soc_tune: {line}", file=sys.stderr, flush=True),
+                log=_note,
             )
         elif args.trials < 1:
             raise ValueError("--trials must be >= 1")
