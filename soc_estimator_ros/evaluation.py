@@ -20,6 +20,7 @@ import numpy as np
 
 from .estimators.base import Estimator
 from .series import EstimateSeries
+from .units import SECONDS_PER_HOUR
 
 
 class SampleSeries(Protocol):
@@ -158,6 +159,57 @@ def accuracy(
         t_settle_s=t_settle,
         window_s=window_s,
         n_samples=int(after.sum()),
+    )
+
+
+@dataclass(frozen=True)
+class ChargeEfficiency:
+    """What a recording's reference SoC says the pack's coulomb efficiency on charge is."""
+
+    efficiency: float  # eta = charge_scale / discharge_scale
+    discharge_scale: float  # reference SoC lost per counted discharge charge (x capacity)
+    charge_scale: float  # reference SoC gained per counted charge (x capacity)
+    offset_a: float  # a constant current the reference SoC shows beside the counted one
+    discharge_ah: float  # counted
+    charge_ah: float  # counted
+
+
+def charge_efficiency(
+    t_s: np.ndarray, current_a: np.ndarray, soc_ref: np.ndarray, capacity_ah: float
+) -> ChargeEfficiency:
+    """The coulomb efficiency on charge that a reference SoC shows (positive current =
+    discharge, each sample's current held until the next, as ``models.coulomb`` counts).
+
+    Least squares over the samples of the counting equation with a scale for each direction
+    and a constant offset:
+
+        -(s_k+1 - s_k) Q 3600 = a I+_k dt_k - b I-_k dt_k + c dt_k
+
+    (``I+`` the discharge part of the current, ``I-`` the charge part, both >= 0). ``a`` is
+    what the sensor's gain and the capacity make of a discharged amp-hour, ``b`` the same
+    times the efficiency on charge; so ``eta = b / a`` whatever the gain and the capacity,
+    and ``c`` takes the sensor's offset. Needs charge in the recording: ``ValueError``
+    without any.
+    """
+    t = np.asarray(t_s, dtype=float)
+    i = np.asarray(current_a, dtype=float)[:-1]
+    ref = np.asarray(soc_ref, dtype=float)
+    dt = np.diff(t)
+    lost_as = -np.diff(ref) * capacity_ah * SECONDS_PER_HOUR
+    ok = np.isfinite(lost_as) & np.isfinite(i) & (dt > 0.0)
+    dis_as = np.where(i > 0.0, i, 0.0)[ok] * dt[ok]
+    chg_as = np.where(i < 0.0, -i, 0.0)[ok] * dt[ok]
+    if not chg_as.sum() > 0.0 or not dis_as.sum() > 0.0:
+        raise ValueError("the recording needs both discharge and charge to tell the efficiency")
+    design = np.column_stack([dis_as, -chg_as, dt[ok]])
+    (a, b, c), *_ = np.linalg.lstsq(design, lost_as[ok], rcond=None)
+    return ChargeEfficiency(
+        efficiency=float(b / a),
+        discharge_scale=float(a),
+        charge_scale=float(b),
+        offset_a=float(c),
+        discharge_ah=float(dis_as.sum() / SECONDS_PER_HOUR),
+        charge_ah=float(chg_as.sum() / SECONDS_PER_HOUR),
     )
 
 

@@ -48,6 +48,10 @@ BAGS = sorted(
 )
 
 
+#: ``coulomb_efficiency_charge`` of the files when DATA was recorded, where it changed since.
+EFFICIENCY_BEFORE = {"sla": 0.9}
+
+
 @cache
 def before() -> dict[str, np.ndarray]:
     with np.load(DATA) as data:
@@ -61,6 +65,15 @@ def test_every_estimator_gives_what_it_gave_before(bag: str) -> None:
 
     series = read_recording(bag_path(bag)).window(0, N)
     battery = load_battery_params(battery_file_for(series))
+    # The SLA file's efficiency on charge, measured on the corpus' tuning half since (issue 24
+    # item 4, benchmarks/studies/charge_efficiency.py), is the pack's, not the filters': the
+    # value every file had before is the one here (these bags charge only the sensor's noise).
+    battery = replace(
+        battery,
+        coulomb_efficiency_charge=EFFICIENCY_BEFORE.get(
+            battery.chemistry, battery.coulomb_efficiency_charge
+        ),
+    )
     for name in sorted(ESTIMATORS):
         b = battery
         if name == "hybrid":
