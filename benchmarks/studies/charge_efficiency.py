@@ -7,10 +7,10 @@ charges, ``tools/make_bags.py --corpus``). Per recording with at least ``--min-c
 charged, :func:`soc_estimator_ros.evaluation.charge_efficiency` (the counting equation's least
 squares with a scale per direction, so the current sensor's gain and the pack's capacity cancel
 in the ratio), then the median over the recordings and the efficiency the battery file holds.
-Read only the tuning half to set a file's value; the validation half checks it.
+Read only the tuning half to set a file's value; the validation half checks it. The corpus'
+directory names carry the split and the chemistry, so a glob selects them (as for soc_tune):
 
-    python benchmarks/studies/charge_efficiency.py --corpus /work/corpus --split tuning \
-        --chemistry sla
+    python benchmarks/studies/charge_efficiency.py /work/corpus/sla_tuning_*
     python benchmarks/studies/charge_efficiency.py bags/sla_validation_1003 ...
 """
 
@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from soc_estimator_ros.evaluation import ChargeEfficiency, charge_efficiency
 from soc_estimator_ros.params import load_battery_params
@@ -56,33 +55,12 @@ def measure(path: Path) -> Measured | None:
     return Measured(path.name, fit, battery.coulomb_efficiency_charge)
 
 
-def corpus_paths(root: Path, split: str | None, chemistry: str | None) -> list[Path]:
-    """The missions under ``root`` whose ``bag.yaml`` has the split and chemistry asked."""
-    out = []
-    for meta_path in sorted(root.glob("*/bag.yaml")):
-        meta = yaml.safe_load(meta_path.read_text())
-        if split is not None and meta.get("split") != split:
-            continue
-        if chemistry is not None and meta.get("chemistry") != chemistry:
-            continue
-        out.append(meta_path.parent)
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("recordings", nargs="*", type=Path)
-    ap.add_argument("--corpus", type=Path, help="a directory of corpus missions")
-    ap.add_argument("--split", choices=("tuning", "validation"))
-    ap.add_argument("--chemistry")
+    ap.add_argument("recordings", nargs="+", type=Path)
     ap.add_argument("--min-charge-ah", type=float, default=MIN_CHARGE_AH)
     args = ap.parse_args(argv)
-    paths = list(args.recordings)
-    if args.corpus is not None:
-        paths += corpus_paths(args.corpus, args.split, args.chemistry)
-    if not paths:
-        ap.error("no recordings: give paths or --corpus DIR")
-    rows = [m for m in map(measure, paths) if m is not None]
+    rows = [m for m in map(measure, args.recordings) if m is not None]
     rows = [m for m in rows if m.fit.charge_ah >= args.min_charge_ah]
     print("| recording | discharged Ah | charged Ah | eta | file's eta |")
     print("|---|---|---|---|---|")
