@@ -304,10 +304,20 @@ class BatteryParams:
     charge: ChargeSettings = field(default_factory=ChargeSettings)
     health: HealthSettings = field(default_factory=HealthSettings)
     cells: CellSettings = field(default_factory=CellSettings)
+    #: The rested OCV (the optional ``rest_ocv:`` section): every long rest of the
+    #: identification's tests (pulse, rate and load tests), at the reference temperature. The
+    #: model's ``ocv`` is fitted together with its branches and lag on the pulse test's rests
+    #: alone; this table is what a pack rested for 45 minutes or more reads, for the health
+    #: monitor's rest readings (``health/monitor.py``). None: the model's table.
+    rest_ocv: OcvTable | None = None
 
     def ocv_curve(self) -> OcvCurve:
         """The battery's OCV curve."""
         return self.ocv.curve()
+
+    def rest_ocv_curve(self) -> OcvCurve:
+        """The rested OCV curve (:attr:`rest_ocv`, else the model's)."""
+        return (self.rest_ocv or self.ocv).curve()
 
     def thevenin_model(self, thevenin: TheveninParams | None = None) -> TheveninModel:
         """The pack's Thevenin model: its OCV (with the temperature shift), ``thevenin`` (the
@@ -509,6 +519,30 @@ def _parse_cells(chk: _Checker, root: Mapping[str, Any]) -> CellSettings:
     return cells
 
 
+def _ocv_points(
+    chk: _Checker, node: Mapping[str, Any], key: str
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """An OCV table's points (``ocv:``, ``rest_ocv:``): SoC in [0, 1] and volts, both
+    increasing, one voltage per SoC."""
+    soc = chk.numbers(chk.get(node, "soc", key), f"{key}.soc", min_len=2)
+    volts = chk.numbers(chk.get(node, "voltage_v", key), f"{key}.voltage_v", positive=True)
+    if len(volts) != len(soc):
+        raise chk.fail(f"{key}.voltage_v", volts, f"{len(soc)} values, one per {key}.soc point")
+    for i, x in enumerate(soc):
+        chk.number(x, f"{key}.soc[{i}]", 0.0, 1.0)
+    chk.increasing(soc, f"{key}.soc")
+    chk.increasing(volts, f"{key}.voltage_v")
+    return soc, volts
+
+
+def _parse_rest_ocv(chk: _Checker, root: Mapping[str, Any]) -> OcvTable | None:
+    """The optional ``rest_ocv:`` section (:attr:`BatteryParams.rest_ocv`)."""
+    if "rest_ocv" not in root:
+        return None
+    soc, volts = _ocv_points(chk, chk.mapping(root["rest_ocv"], "rest_ocv"), "rest_ocv")
+    return OcvTable(soc=soc, voltage_v=volts)
+
+
 def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     """Validate a raw YAML tree (already parsed) and build :class:`BatteryParams`."""
     chk = _Checker(source)
@@ -563,14 +597,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     )
 
     ocv_node = chk.mapping(chk.get(root, "ocv", ""), "ocv")
-    ocv_soc = chk.numbers(chk.get(ocv_node, "soc", "ocv"), "ocv.soc", min_len=2)
-    ocv_v = chk.numbers(chk.get(ocv_node, "voltage_v", "ocv"), "ocv.voltage_v", positive=True)
-    if len(ocv_v) != len(ocv_soc):
-        raise chk.fail("ocv.voltage_v", ocv_v, f"{len(ocv_soc)} values, one per ocv.soc point")
-    for i, s in enumerate(ocv_soc):
-        chk.number(s, f"ocv.soc[{i}]", 0.0, 1.0)
-    chk.increasing(ocv_soc, "ocv.soc")
-    chk.increasing(ocv_v, "ocv.voltage_v")
+    ocv_soc, ocv_v = _ocv_points(chk, ocv_node, "ocv")
     ocv_temps: tuple[float, ...] = ()
     ocv_offsets: tuple[tuple[float, ...], ...] = ()
     if "temperature_c" in ocv_node or "offset_v" in ocv_node:
@@ -695,6 +722,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         coulomb_efficiency_charge=eta,
         limits=limits,
         ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v, temperature_c=ocv_temps, offset_v=ocv_offsets),
+        rest_ocv=_parse_rest_ocv(chk, root),
         rc_model=rc_params,
         thevenin=TheveninParams(
             r0_ohm=r0,
@@ -784,6 +812,11 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     if params.ocv.temperature_c:
         out["ocv"]["temperature_c"] = list(params.ocv.temperature_c)
         out["ocv"]["offset_v"] = [list(r) for r in params.ocv.offset_v]
+    if params.rest_ocv is not None:
+        out["rest_ocv"] = {
+            "soc": list(params.rest_ocv.soc),
+            "voltage_v": list(params.rest_ocv.voltage_v),
+        }
     for name, section in (("levels", params.levels), ("charge", params.charge)):
         given = {k: v for k, v in asdict(section).items() if v is not None}
         if given:

@@ -176,6 +176,7 @@ def scale_battery(
         cells_in_series=cells,
         limits=_scale_fields(battery.limits, LIMITS_UNITS, f),
         ocv=_scale_ocv(battery.ocv, f),
+        rest_ocv=None if battery.rest_ocv is None else _scale_ocv(battery.rest_ocv, f),
         rc_model=_scale_fields(battery.rc_model, RC_MODEL_UNITS, f),
         thevenin=_scale_thevenin(battery.thevenin, f),
         filters=_scale_filters(battery.filters, f),

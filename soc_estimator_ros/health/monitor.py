@@ -13,9 +13,12 @@ Well-known SoC points (the anchors of the capacity's pairs):
 * **a rest** of at least ``rest_min_s`` (current low-passed over ``REST_FILTER_TAU_S`` within
   ``rest_current_c_rate``): the last sample of the rest is read as an OCV, less what the
   monitor's own copy of the Thevenin model says is left of the relaxation (its branches and
-  surface lag stepped open-loop from the measured current), with the SoC std
-  ``ocv_std_v / slope`` (:meth:`OcvCurve.soc_at_with_std`): on LFP's plateau that std is large
-  and the pair weighs little, on a knee or on SLA's steep curve it is a percent;
+  surface lag stepped open-loop from the measured current), and turned into a SoC through the
+  file's rested OCV (``BatteryParams.rest_ocv``: every long rest of the identification's
+  tests, where the model's table holds the pulse test's alone), with the SoC std
+  :meth:`OcvCurve.soc_at_with_interval_std` (how far ``ocv_std_v`` either way moves the SoC):
+  a reading on LFP's plateau, or one whose uncertainty reaches it, is not taken; on a knee or
+  on SLA's steep curve the std is a percent;
 * **a CC-CV charge's end** (``runtime/charging.py``'s FULL): SoC 1 with ``full_soc_std``;
 * **a start after a known rest**: when the saved state says the last sample was at rest and
   at least ``rest_min_s`` before the first one, the first sample is a rest's last.
@@ -96,6 +99,7 @@ class HealthMonitor:
         self.settings = battery.health
         self.model = battery.thevenin_model()
         self._ocv = battery.ocv_curve()
+        self._rest_ocv = battery.rest_ocv_curve()
         self.start_from(state or HealthState.of_file(battery))
 
     def start_from(self, state: HealthState) -> None:
@@ -300,13 +304,17 @@ class HealthMonitor:
         temperature_c: float | None,
         soc: float,
     ) -> _Anchor | None:
-        """The OCV reading of a rest's sample, or None where the curve is too flat to tell."""
+        """The OCV reading of a rest's sample, or None where the curve is too flat to tell.
+
+        The std is the interval's, not the slope's: on the fresh LFP pack the plateau's
+        readings at 60 % read 49 % with a slope std of 3 points (3.5 std off), which moved the
+        learned capacity by both signs (docs/architecture.md#health)."""
         x = self._x.copy()
         x[0] = soc
         z = sum(self._z_modes)
         v_model = self.model.terminal_voltage(x, current_a, temperature_c, z)
         ocv_v = voltage_v - (v_model - self._ocv.ocv(soc))
-        s, std = self._ocv.soc_at_with_std(ocv_v, self.settings.ocv_std_v)
+        s, std = self._rest_ocv.soc_at_with_interval_std(ocv_v, self.settings.ocv_std_v)
         if std >= ANCHOR_MAX_SOC_STD:
             return None
         return _Anchor(self._charge_ah, self._throughput_ah, t_s, min(max(s, 0.0), 1.0), std * std)

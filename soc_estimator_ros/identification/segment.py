@@ -73,9 +73,7 @@ def load_threshold_a(current_a: np.ndarray) -> float:
     return min(max(0.05, 6.0 * noise), max(0.3 * level, 0.05))
 
 
-def _long_rests(
-    t: np.ndarray, quiet: np.ndarray, min_rest_s: float
-) -> list[tuple[int, int, float]]:
+def long_rests(t: np.ndarray, quiet: np.ndarray, min_rest_s: float) -> list[tuple[int, int, float]]:
     """(first, last, duration_s) of the quiet runs lasting ``min_rest_s`` or more."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(int), [0]])))
     out = []
@@ -105,7 +103,7 @@ def find_windows(
     """Every excitation between two rests of at least ``min_rest_s``, in time order."""
     t, i = test.t_s, test.current_a
     thr = load_threshold_a(i) if threshold_a is None else threshold_a
-    rests = _long_rests(t, np.abs(i) <= thr, min_rest_s)
+    rests = long_rests(t, np.abs(i) <= thr, min_rest_s)
     windows = []
     for (_, last0, dur0), (first1, last1, dur1) in zip(rests[:-1], rests[1:], strict=True):
         start, end = last0 + 1, first1 - 1
@@ -143,7 +141,7 @@ def start_after_last_charge(test: BatterySeries, min_rest_s: float = 300.0) -> i
     """
     thr = load_threshold_a(test.current_a)
     t, i = test.t_s, test.current_a
-    rests = _long_rests(t, np.abs(i) <= thr, min_rest_s)
+    rests = long_rests(t, np.abs(i) <= thr, min_rest_s)
     steps = []  # (first sample of the rest after a stretch, net charge removed over it)
     prev_end = 0
     for first, _, _ in rests:

@@ -182,6 +182,23 @@ class OcvCurve:
             return soc, UNINFORMATIVE_SOC_STD
         return soc, min(ocv_std_v / slope, UNINFORMATIVE_SOC_STD)
 
+    def soc_at_with_interval_std(self, ocv_v: float, ocv_std_v: float) -> tuple[float, float]:
+        """Inverse OCV and a SoC standard deviation read across the whole interval
+        ``OCV^-1([ocv_v - ocv_std_v, ocv_v + ocv_std_v])``: the larger of its two sides, capped
+        at :data:`UNINFORMATIVE_SOC_STD`.
+
+        :meth:`soc_at_with_std` linearizes at the reading, which is right for a filter's
+        small steps but not for one reading on a curve that bends within its own
+        uncertainty: on LFP's plateau a reading lands where the table happens to rise a
+        little (slope 0.6 V per SoC at 49 %, std 3 points) while 20 mV of pack voltage span
+        44-68 % (half-width 12 points). A reading of that kind is a point anywhere in the
+        interval.
+        """
+        soc = self.soc_at(ocv_v)
+        lo = self.soc_at(ocv_v - ocv_std_v)
+        hi = self.soc_at(ocv_v + ocv_std_v)
+        return soc, min(max(soc - lo, hi - soc), UNINFORMATIVE_SOC_STD)
+
     @property
     def ocv_min_v(self) -> float:
         """OCV at the lowest table point (volts)."""

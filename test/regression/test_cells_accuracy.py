@@ -8,13 +8,11 @@ bounds are the issue's and are never loosened here.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from functools import cache
 from types import ModuleType
 
 import pytest
-from conftest import REPO_ROOT, bag_path
+from conftest import bag_path, load_benchmark
 
 #: Per-cell and usable SoC MAE after the 10-minute window (issue 25's targets).
 MAE_MAX = 0.015
@@ -39,13 +37,7 @@ MISSED: dict[tuple[str, str], str] = {
 
 @cache
 def study() -> ModuleType:
-    path = REPO_ROOT / "benchmarks" / "studies" / "cells_accuracy.py"
-    spec = importlib.util.spec_from_file_location("cells_accuracy", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["cells_accuracy"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("studies/cells_accuracy")
 
 
 @cache

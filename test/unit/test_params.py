@@ -86,6 +86,10 @@ BAD = [
     ("ocv.soc[2]", 0.0, "ocv.soc[2]", "strictly increasing"),
     ("ocv.soc[10]", 1.2, "ocv.soc[10]", "<= 1"),
     ("ocv.voltage_v", [12.0, 12.5], "ocv.voltage_v", "one per ocv.soc point"),
+    ("rest_ocv.voltage_v[4]", 1.0, "rest_ocv.voltage_v[4]", "strictly increasing"),
+    ("rest_ocv.soc[3]", -0.1, "rest_ocv.soc[3]", ">= 0"),
+    ("rest_ocv.voltage_v", [12.0, 12.5], "rest_ocv.voltage_v", "one per rest_ocv.soc point"),
+    ("rest_ocv", [1, 2], "rest_ocv", "a mapping"),
     ("rc_model.r_b_ohm", -0.01, "rc_model.r_b_ohm", "> 0"),
     ("rc_model.c_s_f", 0.0, "rc_model.c_s_f", "> 0"),
     ("thevenin.r0_ohm[1]", -0.03, "thevenin.r0_ohm[1]", "> 0"),
@@ -252,3 +256,22 @@ def test_cells_section_is_optional_validated_and_round_trips() -> None:
     dumped = battery_params_to_dict(params)
     assert dumped["cells"] == tree["cells"]
     assert parse_battery_params(dumped) == params
+
+
+def test_rest_ocv_is_optional_and_round_trips() -> None:
+    # The LFP file carries a rested OCV (soc_identify with a rate and a load test); without
+    # the section the rested curve is the model's, to the bit.
+    tree = base()
+    params = parse_battery_params(tree)
+    assert params.rest_ocv is not None
+    assert params.rest_ocv != params.ocv
+    curve = params.rest_ocv_curve()
+    for soc, volts in zip(params.rest_ocv.soc, params.rest_ocv.voltage_v, strict=True):
+        assert curve.ocv(soc) == pytest.approx(volts, abs=1e-12)  # PCHIP through its points
+    again = parse_battery_params(battery_params_to_dict(params))
+    assert again.rest_ocv == params.rest_ocv
+    del tree["rest_ocv"]
+    plain = parse_battery_params(tree)
+    assert plain.rest_ocv is None
+    for soc in (0.1, 0.23, 0.5, 0.9):
+        assert plain.rest_ocv_curve().ocv(soc) == plain.ocv_curve().ocv(soc)

@@ -53,6 +53,33 @@ def test_plateau_inverse_carries_large_uncertainty() -> None:
     assert std_capped == pytest.approx(UNINFORMATIVE_SOC_STD)
 
 
+def test_interval_std_equals_the_slope_std_on_a_straight_curve() -> None:
+    # A straight OCV (1 V per unit SoC): the interval's sides are the linearization's std
+    # exactly; the tolerance is the inverse's Newton tolerance (1e-13) times a few.
+    line = OcvCurve([0.0, 0.5, 1.0], [12.0, 12.5, 13.0])
+    for s in (0.2, 0.5, 0.8):
+        soc, std = line.soc_at_with_interval_std(line.ocv(s), 0.02)
+        assert soc == pytest.approx(s, abs=1e-12)
+        assert std == pytest.approx(line.soc_at_with_std(line.ocv(s), 0.02)[1], abs=1e-9)
+        assert std == pytest.approx(0.02, abs=1e-9)
+
+
+def test_interval_std_sees_a_plateau_beside_the_reading() -> None:
+    # At 29 %, at the plateau's foot, the slope (0.33 V per unit SoC) gives 3 points of std
+    # for 10 mV; but OCV + 10 mV lands on the plateau, 8 points up: the interval std is that
+    # distance (the larger side), 2.7 times the linearized one on this curve.
+    v = LFP.ocv(0.29)
+    soc, std_lin = LFP.soc_at_with_std(v, 0.01)
+    _, std_interval = LFP.soc_at_with_interval_std(v, 0.01)
+    hi = LFP.soc_at(v + 0.01)
+    assert std_lin < 0.035
+    assert std_interval == pytest.approx(hi - soc, abs=1e-12)
+    assert std_interval > 2.5 * std_lin
+    # Capped as the linearized std is.
+    _, capped = LFP.soc_at_with_interval_std(LFP.ocv(0.5), 1.0)
+    assert capped == pytest.approx(UNINFORMATIVE_SOC_STD)
+
+
 @pytest.mark.parametrize(
     ("soc", "ocv", "match"),
     [
