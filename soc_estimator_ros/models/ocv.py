@@ -190,9 +190,9 @@ class OcvCurve:
         :meth:`soc_at_with_std` linearizes at the reading, which is right for a filter's
         small steps but not for one reading on a curve that bends within its own
         uncertainty: on LFP's plateau a reading lands where the table happens to rise a
-        little (slope 0.6 V per SoC at 49 %, std 3 points) while 20 mV of pack voltage span
-        44-68 % (half-width 12 points). A reading of that kind is a point anywhere in the
-        interval.
+        little (slope 0.6 V per unit of SoC at 49 %: std 3 points for 20 mV) while 20 mV
+        either way spans 44-68 % (half-width 12 points). Such a reading is a point anywhere
+        in that interval.
         """
         soc = self.soc_at(ocv_v)
         lo = self.soc_at(ocv_v - ocv_std_v)
