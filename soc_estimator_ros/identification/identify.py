@@ -256,7 +256,7 @@ def rested_ocv(
     and the model error are fitted with it; the other tests' rests put it right where it is
     wrong at rest (between the pulse test's points) but, put into the model's table, they
     made the open-loop model worse on every LFP recording tried (the rate test's own RMSE
-    25 -> 43 mV, the load test's 46 -> 65 mV, the field runs' 37-42 -> 38-64 mV), so they
+    25 -> 43 mV, the load test's 46 -> 65 mV, the field runs' 36-42 -> 38-64 mV), so they
     stay out of it. The health monitor reads rests with this one.
     """
     extra: list[RestPoint] = []
@@ -383,9 +383,8 @@ def identify(
         # The rate test's start is reported by rate_test_fits, the load test's here.
         extras = [(rate_test, "rate test", []), (load_test, "load test", notes)]
         battery = with_surface_lag(battery, test, pulses, soc_at, extras, notes)
-    pulse_rests = [
-        (float(soc_at[p.rest_before]), rested_voltage(test, p.rest_before)) for p in pulses
-    ]
+    # The rests before each pulse (the last point is the rest after the last pulse).
+    pulse_rests = [(pt.soc, pt.voltage_v) for pt in rest_points[:-1]]
     return IdentificationResult(
         battery,
         fits,
