@@ -138,6 +138,11 @@ class HealthSettings:
         step_model_frac: the model's relative error on a step's answer.
         soh_warn, soh_dead: state of health below which diagnostics warn and
             ``power_supply_health`` is DEAD (seed 001: 0.6 is the end of life).
+        ocv_ageing_exponent: how the OCV ages with the capacity: a rest reading ``s`` below
+            ``ocv_ageing_below_soc`` is taken as ``p + (s - p) (Q_file / Q)^k`` on a pack of
+            capacity ``Q`` (``health.capacity.OcvAgeing``; 0: the OCV does not age).
+        ocv_ageing_pivot_soc: ``p``, where the aged and the fresh pack's OCV agree.
+        ocv_ageing_below_soc: readings at or above this SoC are taken as read.
     """
 
     capacity_std_frac: float = 0.10
@@ -158,6 +163,9 @@ class HealthSettings:
     step_model_frac: float = 0.1
     soh_warn: float = 0.8
     soh_dead: float = 0.6
+    ocv_ageing_exponent: float = 0.0
+    ocv_ageing_pivot_soc: float = 0.0
+    ocv_ageing_below_soc: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -254,6 +262,9 @@ HEALTH_BOUNDS: dict[str, tuple[float, float]] = {
     "step_model_frac": (0.0, 10.0),
     "soh_warn": (0.0, 1.0),
     "soh_dead": (0.0, 1.0),
+    "ocv_ageing_exponent": (-2.0, 2.0),
+    "ocv_ageing_pivot_soc": (0.0, 1.0),
+    "ocv_ageing_below_soc": (0.0, 1.0),
 }
 
 

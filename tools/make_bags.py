@@ -28,7 +28,8 @@ sizes"): each pack of :data:`HEALTH_PACKS` (LFP aged by loss of lithium inventor
 material, SLA by loss of active plate area, both with a series resistance; fresh packs as the
 control; 24 V packs of other sizes) is measured (C/20 capacity, 5-s resistance, kept in
 ``DIR/packs.yaml``) and given 2-3 missions from full with a rest half-way and at the end, 2 Hz,
-validation seeds from 2000; ``DIR/STATUS.md`` lists the packs and the missions written.
+seeds from 2000 (validation, but for the ``*_tuning`` packs); ``DIR/STATUS.md`` lists the packs
+and the missions written.
 
 Scenario corpus (``--corpus``; bags/README.md, "Scenario corpus", has the full table): seeded
 missions, one bag per mission in the bundled bags' format (``kind: mission``), with ``split``,
@@ -1489,7 +1490,7 @@ def make_corpus(chemistries: list[str], seeds: list[int], out_dir: Path, jobs: i
 
 
 # -- battery health: aged packs and packs of other sizes (--aged, --sized) -------------------
-#: Health missions' seeds (validation only: nothing is tuned on them): 2000 + 10 x the pack's
+#: Health missions' seeds (validation, but for the ``*_tuning`` packs): 2000 + 10 x the pack's
 #: index in :data:`HEALTH_PACKS` + the mission's number (1-3), with the chemistry as a second
 #: word of every random stream, as in the corpus.
 HEALTH_FIRST_SEED = 2000
@@ -1532,6 +1533,11 @@ class HealthPack:
     def sized(self) -> bool:
         return self.cells is not None
 
+    @property
+    def split(self) -> str:
+        """``tuning`` for the packs the OCV's ageing law is chosen on, else ``validation``."""
+        return "tuning" if self.name.endswith("_tuning") else "validation"
+
     def bag_name(self, k: int) -> str:
         return f"{self.name}_m{k}"
 
@@ -1571,6 +1577,14 @@ HEALTH_PACKS = [
     # Other sizes (24 V): 8 LFP cells of 12 Ah, 12 SLA cells of 20 Ah (C/20).
     HealthPack("lfp_24v12ah", "lfp", 2, cells=8, pack_capacity_ah=12.0, serial="LFP-24V12AH-SIM"),
     HealthPack("sla_24v20ah", "sla", 2, cells=12, pack_capacity_ah=20.0, serial="SLA-24V20AH-SIM"),
+    # The tuning packs (``*_tuning``): the one place the OCV's ageing law (the battery file's
+    # ``health.ocv_ageing_exponent``) is chosen; every other pack stays validation. About 82 %
+    # of the fresh capacity, between the validation packs' 90 % and 75 % (LFP's lithium and
+    # active material interpolated between theirs).
+    HealthPack(
+        "lfp_aged82_tuning", "lfp", 3, 0.82, 1.5, 0.825, 0.91, serial="ROYPOW-12V6AH-SIM-AGED82"
+    ),
+    HealthPack("sla_aged82_tuning", "sla", 3, 0.82, 1.5, serial="AJC-12V5AH-SIM-AGED82"),
 ]
 
 
@@ -1716,13 +1730,13 @@ def build_health_mission(hp: HealthPack, k: int, m: dict, out_dir: str) -> dict:
     if hp.sized:
         what = f"{pack.cells} cells, {pack.pack_capacity_ah:g} Ah nominal"
     description = (
-        f"Battery-health mission {k} of {hp.missions} of pack {hp.name} ({what}; validation, "
+        f"Battery-health mission {k} of {hp.missions} of pack {hp.name} ({what}; {hp.split}, "
         f"seed {seed}): rested at full, the seeder's work to {drawn['mid_soc']:.0%}, a "
         f"{drawn['mid_rest_s'] / 60:.0f}-min rest, the work on to {drawn['end_soc']:.0%}, a "
         f"{drawn['end_rest_s'] / 60:.0f}-min rest; 25 degC, {HEALTH_RATE_HZ:g} Hz."
     )
     spec = BagSpec(hp.bag_name(k), hp.chemistry, "health_mission", seed, description=description)
-    extra = {"split": "validation", "health": {**m, "mission": k, "of": hp.missions, **drawn}}
+    extra = {"split": hp.split, "health": {**m, "mission": k, "of": hp.missions, **drawn}}
     return write_bag(
         spec,
         data,

@@ -3,11 +3,12 @@
 
 Reads the health data ``tools/make_bags.py --aged`` (and ``--sized``) writes (``DIR/packs.yaml``,
 the packs' measured C/20 capacity and 5-s resistance, and their missions ``DIR/<pack>_m<k>``;
-every one is validation: nothing is tuned on them). For each pack, its missions are replayed
-in order through the hybrid with one state file, as ``soc_replay --state FILE <pack>_m1
-<pack>_m2 ...`` does, so the health learned on a mission starts the next; a pack of another
-size than the chemistry's file (``--sized``) gets the file scaled to its cells and rated
-capacity, as ``--cells-in-series`` and ``--capacity-ah`` do. Prints, per pack:
+every one is validation but the ``*_tuning`` packs, on which the OCV's ageing law is
+chosen). For each pack, its missions are replayed in order through the hybrid with one state
+file, as ``soc_replay --state FILE <pack>_m1 <pack>_m2 ...`` does, so the health learned on a
+mission starts the next; a pack of another size than the chemistry's file (``--sized``) gets
+the file scaled to its cells and rated capacity, as ``--cells-in-series`` and ``--capacity-ah``
+do. Prints, per pack:
 
 * the learned capacity (Ah) and its std after each mission, its error against the measured
   capacity (targets: within 3 % after three missions of an aged pack, within 2 % on the fresh
@@ -17,7 +18,17 @@ capacity, as ``--cells-in-series`` and ``--capacity-ah`` do. Prints, per pack:
   mission of every aged pack; on a scaled pack MAE <= 1 % and a max within coulomb
   counting's + 1 point).
 
+With ``--readings``, per pack instead: every rest reading the capacity's pairs were made of,
+as read (through the file's rested OCV) against the reference SoC at the same sample; the
+exponent of the OCV's ageing law (``health.capacity.OcvAgeing``) each reading below the file's
+``ocv_ageing_below_soc`` implies (``ln((s_true - p) / (s_read - p)) / ln(Q_file / Q_measured)``,
+``p`` the pivot) and their least-squares value; and the capacity the same pairs give with the
+reference's SoC in place of the readings (the pack's own prior, all pairs in one fit): the
+floor the charge count (its sensor's gain and offset) sets under any reading of the rests.
+The exponent is chosen on the ``*_tuning`` packs only.
+
     python benchmarks/studies/health.py /work/health_corpus [--packs lfp_fresh lfp_aged75]
+    python benchmarks/studies/health.py /work/health_corpus --readings --packs lfp_aged82_tuning
 """
 
 from __future__ import annotations
@@ -25,12 +36,16 @@ from __future__ import annotations
 import argparse
 import math
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
 import yaml
+from scipy.optimize import minimize_scalar
 
 from soc_estimator_ros.evaluation import Accuracy
+from soc_estimator_ros.health import CapacityPair, fit_capacity
+from soc_estimator_ros.health.monitor import capacity_ageing
 from soc_estimator_ros.params import BatteryParams, load_battery_params
 from soc_estimator_ros.recordings import read_recording
 from soc_estimator_ros.replay.run import battery_file_for, replay_estimator
@@ -64,6 +79,108 @@ def pack_battery(series: BatterySeries, pack: dict | None) -> BatteryParams:
     if pack is None:
         return battery
     return scale_to_pack(battery, int(pack["cells_in_series"]), float(pack["design_capacity_ah"]))
+
+
+@dataclass(frozen=True)
+class Reading:
+    mission: str
+    t_s: float
+    soc_read: float
+    soc_std: float
+    soc_ref: float
+
+
+def ref_soc_at(series: BatterySeries, t_s: float) -> float:
+    """The reference SoC at the sample nearest ``t_s``."""
+    k = int(np.argmin(np.abs(np.asarray(series.t_s, dtype=float) - t_s)))
+    return float(np.asarray(series.soc_ref)[k])
+
+
+def readings_of(
+    missions: list[Path], estimator: str, pack: dict | None
+) -> tuple[list[Reading], list[CapacityPair], list[CapacityPair], BatteryParams]:
+    """The missions replayed in order with one state file (as :func:`life`); every reading
+    of the capacity's pairs against the reference SoC, the pairs as made and the same pairs
+    with the reference's SoC in place of the readings."""
+    readings: dict[tuple[str, float], Reading] = {}
+    made: list[CapacityPair] = []
+    truth: list[CapacityPair] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        state = Path(tmp) / "state.yaml"
+        for path in missions:
+            series = read_recording(path)
+            battery = pack_battery(series, pack)
+            result = replay_estimator(
+                series, battery, estimator, INITIAL_SOC, path.name, state=state
+            )
+            for p in result.health_pairs:
+                for t_s, s, var in (
+                    (p.t_from_s, p.soc_from, p.soc_from_var),
+                    (p.t_to_s, p.soc_to, p.soc_to_var),
+                ):
+                    readings[(path.name, t_s)] = Reading(
+                        path.name, t_s, s, math.sqrt(var), ref_soc_at(series, t_s)
+                    )
+                made.append(p)
+                truth.append(
+                    replace(
+                        p,
+                        soc_from=ref_soc_at(series, p.t_from_s),
+                        soc_to=ref_soc_at(series, p.t_to_s),
+                    )
+                )
+    return list(readings.values()), made, truth, battery
+
+
+def print_readings(data_dir: Path, names: list[str], packs: dict, estimator: str) -> None:
+    """``--readings`` (module docstring)."""
+    for name in names:
+        missions = missions_of(data_dir, name)
+        if not missions:
+            print(f"{name}: no missions in {data_dir}")
+            continue
+        measured = float(packs[name]["capacity_ah"])
+        readings, made, truth, battery = readings_of(missions, estimator, packs[name])
+        h = battery.health
+        ratio = battery.capacity_ah / measured
+        print(f"{name}: measured {measured:.3f} Ah, file {battery.capacity_ah:.3f} Ah")
+        print("| mission | t s | read % (std) | reference % | read - reference | exponent |")
+        print("|---|---|---|---|---|---|")
+        below = []
+        pivot = h.ocv_ageing_pivot_soc
+        for r in sorted(readings, key=lambda r: (r.mission, r.t_s)):
+            k = "-"
+            # a reading at the pivot carries no exponent (the law leaves it where it is)
+            informative = abs(r.soc_read - pivot) > 1e-3 and abs(r.soc_ref - pivot) > 1e-3
+            if r.soc_read < h.ocv_ageing_below_soc and informative and abs(math.log(ratio)) > 1e-3:
+                k = f"{math.log((r.soc_ref - pivot) / (r.soc_read - pivot)) / math.log(ratio):.2f}"
+                below.append(r)
+            print(
+                f"| {r.mission} | {r.t_s:.0f} | {100 * r.soc_read:.2f} ({100 * r.soc_std:.2f}) | "
+                f"{100 * r.soc_ref:.2f} | {100 * (r.soc_read - r.soc_ref):+.2f} | {k} |"
+            )
+        if below:
+            # least squares of s_read ratio^k against s_ref over the readings below
+            fit = minimize_scalar(
+                lambda k, rs=below, x=ratio, p=pivot: sum(
+                    (p + (r.soc_read - p) * x**k - r.soc_ref) ** 2 for r in rs
+                ),
+                bounds=(-2.0, 2.0),
+                method="bounded",
+            )
+            print(
+                f"exponent, least squares over the {len(below)} readings below "
+                f"{h.ocv_ageing_below_soc:g}: {fit.x:.3f}"
+            )
+        prior_var = (h.capacity_std_frac * battery.capacity_ah) ** 2
+        fits = (("as read", made, capacity_ageing(battery)), ("at the reference SoC", truth, None))
+        for label, pairs, ageing in fits:
+            q, var = fit_capacity(pairs, battery.capacity_ah, prior_var, ageing)
+            print(
+                f"capacity from the {len(pairs)} pairs {label}: {q:.3f} +- {math.sqrt(var):.3f} Ah"
+                f" ({100 * (q / measured - 1):+.1f} %)"
+            )
+        print()
 
 
 def life(
@@ -100,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("data_dir", type=Path, help="tools/make_bags.py --aged --out DIR")
     ap.add_argument("--packs", nargs="*", default=None, help="default: every pack in packs.yaml")
     ap.add_argument("--estimator", default="hybrid")
+    ap.add_argument("--readings", action="store_true", help="the rest readings (docstring)")
     args = ap.parse_args(argv)
     packs_file = args.data_dir / "packs.yaml"
     if not packs_file.exists():
@@ -107,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     packs = yaml.safe_load(packs_file.read_text())
     names = args.packs or list(packs)
+    if args.readings:
+        print_readings(args.data_dir, names, packs, args.estimator)
+        return 0
     print("| pack | measured Ah | learned Ah after each mission (std) | error | R0 factor |")
     print("|---|---|---|---|---|")
     accuracy_rows = []

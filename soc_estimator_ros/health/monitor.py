@@ -18,7 +18,9 @@ Well-known SoC points (the anchors of the capacity's pairs):
   tests, where the model's table holds the pulse test's alone), with the SoC std
   :meth:`OcvCurve.soc_at_with_interval_std` (how far ``ocv_std_v`` either way moves the SoC):
   a reading on LFP's plateau, or one whose uncertainty reaches it, is not taken; on a knee or
-  on SLA's steep curve the std is a percent;
+  on SLA's steep curve the std is a percent. The pair keeps the reading as read: the fit maps
+  it through the file's law of the OCV's ageing at each capacity it tries
+  (``capacity.OcvAgeing``), since an aged pack's rests do not sit on the fresh pack's OCV;
 * **a CC-CV charge's end** (``runtime/charging.py``'s FULL): SoC 1 with ``full_soc_std``;
 * **a start after a known rest**: when the saved state says the last sample was at rest and
   at least ``rest_min_s`` before the first one, the first sample is a rest's last.
@@ -40,7 +42,7 @@ from dataclasses import dataclass
 from ..models.coulomb import coulomb_efficiency
 from ..params import BatteryParams
 from ..units import SECONDS_PER_HOUR
-from .capacity import Q_RANGE, CapacityEstimator, CapacityPair
+from .capacity import Q_RANGE, CapacityEstimator, CapacityPair, OcvAgeing
 from .resistance import ResistanceFactor, step_observation
 
 #: Low-pass time constant on the current before the rest test (s), as the hybrid's.
@@ -82,6 +84,16 @@ class HealthState:
         return cls(q, (h.capacity_std_frac * q) ** 2, 1.0, h.r0_factor_std**2, serial_number)
 
 
+def capacity_ageing(battery: BatteryParams) -> OcvAgeing | None:
+    """The file's law of the OCV's ageing for the capacity's fit (None: the OCV does not age)."""
+    h = battery.health
+    if h.ocv_ageing_exponent == 0.0:
+        return None
+    return OcvAgeing(
+        h.ocv_ageing_exponent, h.ocv_ageing_pivot_soc, h.ocv_ageing_below_soc, battery.capacity_ah
+    )
+
+
 @dataclass(frozen=True)
 class _Anchor:
     charge_ah: float  # the run's counted charge at the anchor
@@ -106,7 +118,9 @@ class HealthMonitor:
         """Continue from ``state`` (a saved one, or :meth:`HealthState.of_file`)."""
         h = self.settings
         self.serial_number = state.serial_number
-        self.capacity = CapacityEstimator(state.capacity_ah, state.capacity_var_ah2)
+        self.capacity = CapacityEstimator(
+            state.capacity_ah, state.capacity_var_ah2, capacity_ageing(self.battery)
+        )
         self.resistance = ResistanceFactor(
             state.r0_factor, state.r0_factor_var, h.r0_drift_per_hour
         )
@@ -337,8 +351,12 @@ class HealthMonitor:
             charge_ah=dq,
             charge_var_ah2=(h.current_offset_std_a * (anchor.t_s - ref.t_s) / SECONDS_PER_HOUR) ** 2
             + (h.current_gain_std * moved) ** 2,
-            soc_drop=ref.soc - anchor.soc,
-            soc_drop_var=ref.soc_var + anchor.soc_var,
+            soc_from=ref.soc,
+            soc_from_var=ref.soc_var,
+            soc_to=anchor.soc,
+            soc_to_var=anchor.soc_var,
+            t_from_s=ref.t_s,
+            t_to_s=anchor.t_s,
         )
         q_pair = pair.capacity_ah
         if not (Q_RANGE[0] * prior <= q_pair <= Q_RANGE[1] * prior):

@@ -31,6 +31,7 @@ from ..cells import cell_field_names
 from ..errors import SocEstimatorError
 from ..estimators import ESTIMATORS
 from ..evaluation import Accuracy, accuracy
+from ..health import CapacityPair
 from ..messages import chemistry_of_technology
 from ..params import BatteryParams, load_battery_params
 from ..recordings import read_recording
@@ -65,6 +66,9 @@ class ReplayResult:
     start: str
     counts: dict[str, int]
     runtime: RuntimeSeries | None = None
+    #: The capacity's pairs of well-known SoC points this run made (``health/``; empty when
+    #: the health is not learned).
+    health_pairs: tuple[CapacityPair, ...] = ()
 
     @property
     def finite(self) -> bool:
@@ -296,7 +300,8 @@ def replay_estimator(
     counts = {v.value: c for v, c in tracker.gate.counts.items() if c and v is not Verdict.ACCEPTED}
     if tracker.gate.temperature_ignored:
         counts["temperature_ignored"] = tracker.gate.temperature_ignored
-    return ReplayResult(name, estimates, score(series, estimates), start, counts, rt)
+    pairs = tuple(tracker.health.capacity.pairs) if tracker.health is not None else ()
+    return ReplayResult(name, estimates, score(series, estimates), start, counts, rt, pairs)
 
 
 def save_health(path: Path, tracker: Tracker) -> None:

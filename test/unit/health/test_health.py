@@ -7,9 +7,16 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
-from soc_estimator_ros.health import CapacityEstimator, CapacityPair, ResistanceFactor, fit_capacity
-from soc_estimator_ros.health.monitor import HealthMonitor, HealthState
+from soc_estimator_ros.health import (
+    CapacityEstimator,
+    CapacityPair,
+    OcvAgeing,
+    ResistanceFactor,
+    fit_capacity,
+)
+from soc_estimator_ros.health.monitor import HealthMonitor, HealthState, capacity_ageing
 from soc_estimator_ros.health.resistance import GATE_RESET, step_observation
 from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.resources import bundled_file
@@ -24,13 +31,54 @@ def test_wtls_recovers_a_known_capacity_from_noisy_pairs() -> None:
         pair = CapacityPair(
             charge_ah=q_true * ds_true + rng.normal(0.0, 0.02),
             charge_var_ah2=0.02**2,
-            soc_drop=ds_true + rng.normal(0.0, 0.01),
-            soc_drop_var=0.01**2,
+            soc_from=1.0,
+            soc_from_var=0.0,
+            soc_to=1.0 - ds_true + rng.normal(0.0, 0.01),
+            soc_to_var=0.01**2,
         )
         est.add(pair)
     # 12 pairs of 1 % SoC noise over ds ~0.55: the fit's own std is ~0.02 Ah; 4 sigma.
     assert abs(est.capacity_ah - q_true) < 4.0 * est.capacity_std_ah
     assert est.capacity_std_ah < 0.05
+
+
+def test_ocv_ageing_maps_the_readings_below_and_leaves_the_rest() -> None:
+    # LFP's form (pivot 0, readings below 0.5): Q_file / Q = 1.25, k = 1.
+    lfp = OcvAgeing(exponent=1.0, pivot_soc=0.0, below_soc=0.5, file_capacity_ah=6.0)
+    assert lfp.soc(0.2, 4.8) == pytest.approx((0.25, 1.25), rel=1e-12)
+    assert lfp.soc(0.9, 4.8) == (0.9, 1.0)  # the top knee: as read
+    assert lfp.soc(0.2, 6.0) == (0.2, 1.0)  # a pack of the file's capacity: as read
+    # Lead-acid's form (pivot 1): the depth of discharge read grows by the factor.
+    sla = OcvAgeing(exponent=1.0, pivot_soc=1.0, below_soc=1.0, file_capacity_ah=6.0)
+    assert sla.soc(0.6, 4.8) == pytest.approx((0.5, 1.25), rel=1e-12)
+    assert sla.soc(1.0, 4.8) == (1.0, 1.0)  # full stays full
+
+
+def test_the_fit_reads_an_aged_pack_through_the_law() -> None:
+    # An aged pack of 4.5 Ah on a 6 Ah file whose readings below the plateau follow the law at
+    # k = 0.7: from full (read 1.0) to 20 % of its capacity, each reading comes out at
+    # 0.2 (4.5 / 6)^0.7. Pairs without noise: through the law the fit is the pack's capacity
+    # (to the optimizer's 1e-6 of the prior, the weak prior's pull ~1e-4); read as they come,
+    # 4-5 % low.
+    q_true, q_file, k = 4.5, 6.0, 0.7
+    ageing = OcvAgeing(k, 0.0, 0.5, q_file)
+    pairs = []
+    for s_end in (0.18, 0.22, 0.26):
+        s_read = s_end * (q_true / q_file) ** k
+        pairs.append(CapacityPair(q_true * (1.0 - s_end), 1e-6, 1.0, 1e-6, s_read, 1e-4))
+    q, _ = fit_capacity(pairs, q_file, (0.6 * q_file) ** 2, ageing)
+    assert q == pytest.approx(q_true, rel=1e-3)
+    plain, _ = fit_capacity(pairs, q_file, (0.6 * q_file) ** 2)
+    assert plain / q_true - 1.0 < -0.03
+
+
+def test_the_bundled_files_carry_the_law_chosen_on_the_tuning_packs() -> None:
+    # LFP: 0.71, the least squares of the lfp_aged82_tuning pack's readings
+    # (benchmarks/studies/health.py --readings); SLA: its tuning pack's readings put the
+    # exponent within their own noise of 0 (docs/architecture.md#health), so no law.
+    lfp = load_battery_params(bundled_file("lfp"))
+    assert capacity_ageing(lfp) == OcvAgeing(0.71, 0.0, 0.5, lfp.capacity_ah)
+    assert capacity_ageing(load_battery_params(bundled_file("sla"))) is None
 
 
 def test_no_pairs_keeps_the_prior() -> None:
