@@ -118,7 +118,10 @@ class HealthSettings:
     Every entry has a default (an entry the file leaves out takes it).
 
     Attributes:
-        capacity_std_frac: the file's capacity's std for a pack of unknown age (fraction).
+        capacity_std_frac: the file's capacity's std for a pack of unknown age (fraction):
+            0.2, the widest whose 2 std stay above the end of life (0.6 of the file's); at
+            0.1 the file's fresh capacity pulled three missions of an aged pack's evidence
+            by about 2 % (docs/architecture.md#health).
         capacity_drift_per_cycle: the capacity's std growth per equivalent full cycle
             (fraction): how fast what was learned goes out of date as the pack ages.
         rest_min_s: a rest this long is read as an OCV (s).
@@ -145,7 +148,7 @@ class HealthSettings:
         ocv_ageing_below_soc: readings at or above this SoC are taken as read.
     """
 
-    capacity_std_frac: float = 0.10
+    capacity_std_frac: float = 0.20
     capacity_drift_per_cycle: float = 0.002
     rest_min_s: float = 1800.0
     rest_current_c_rate: float = 0.02

@@ -1578,13 +1578,24 @@ HEALTH_PACKS = [
     HealthPack("lfp_24v12ah", "lfp", 2, cells=8, pack_capacity_ah=12.0, serial="LFP-24V12AH-SIM"),
     HealthPack("sla_24v20ah", "sla", 2, cells=12, pack_capacity_ah=20.0, serial="SLA-24V20AH-SIM"),
     # The tuning packs (``*_tuning``): the one place the OCV's ageing law (the battery file's
-    # ``health.ocv_ageing_exponent``) is chosen; every other pack stays validation. About 82 %
-    # of the fresh capacity, between the validation packs' 90 % and 75 % (LFP's lithium and
-    # active material interpolated between theirs).
+    # ``health.ocv_ageing_exponent``) and the capacity's prior are chosen; every other pack
+    # stays validation. About 82 %, 86 % and 70 % of the fresh capacity, beside the validation
+    # packs' 90 % and 75 % (LFP's lithium and active material on the line through theirs).
     HealthPack(
         "lfp_aged82_tuning", "lfp", 3, 0.82, 1.5, 0.825, 0.91, serial="ROYPOW-12V6AH-SIM-AGED82"
     ),
     HealthPack("sla_aged82_tuning", "sla", 3, 0.82, 1.5, serial="AJC-12V5AH-SIM-AGED82"),
+    HealthPack(
+        "lfp_aged86_tuning", "lfp", 3, 0.86, 1.4, 0.864, 0.93, serial="ROYPOW-12V6AH-SIM-AGED86"
+    ),
+    HealthPack("sla_aged86_tuning", "sla", 3, 0.86, 1.4, serial="AJC-12V5AH-SIM-AGED86"),
+    HealthPack(
+        "lfp_aged70_tuning", "lfp", 3, 0.70, 1.9, 0.709, 0.85, serial="ROYPOW-12V6AH-SIM-AGED70"
+    ),
+    HealthPack("sla_aged70_tuning", "sla", 3, 0.70, 1.9, serial="AJC-12V5AH-SIM-AGED70"),
+    # Fresh packs on other robots (sensors), for what a law or a prior costs a new pack.
+    HealthPack("lfp_fresh_tuning", "lfp", 3, serial="ROYPOW-12V6AH-SIM-B"),
+    HealthPack("sla_fresh_tuning", "sla", 3, serial="AJC-12V5AH-SIM-B"),
 ]
 
 

@@ -29,6 +29,7 @@ The exponent is chosen on the ``*_tuning`` packs only.
 
     python benchmarks/studies/health.py /work/health_corpus [--packs lfp_fresh lfp_aged75]
     python benchmarks/studies/health.py /work/health_corpus --readings --packs lfp_aged82_tuning
+    python benchmarks/studies/health.py /work/health_corpus --readings --pivot 1 --packs sla_...
 """
 
 from __future__ import annotations
@@ -132,8 +133,23 @@ def readings_of(
     return list(readings.values()), made, truth, battery
 
 
-def print_readings(data_dir: Path, names: list[str], packs: dict, estimator: str) -> None:
-    """``--readings`` (module docstring)."""
+def exponent_fit(points: list[tuple[float, float, float]], pivot: float) -> float:
+    """The exponent ``k`` of the OCV's ageing law by least squares of ``p + (s_read - p)
+    ratio^k`` against ``s_ref`` over ``points`` ``(s_read, s_ref, Q_file / Q_measured)``."""
+    fit = minimize_scalar(
+        lambda k: sum((pivot + (s - pivot) * x**k - ref) ** 2 for s, ref, x in points),
+        bounds=(-2.0, 2.0),
+        method="bounded",
+    )
+    return float(fit.x)
+
+
+def print_readings(
+    data_dir: Path, names: list[str], packs: dict, estimator: str, pivot_soc: float | None
+) -> None:
+    """``--readings`` (module docstring); ``pivot_soc`` the law's pivot (None: the file's)."""
+    pooled: dict[str, list[tuple[float, float, float]]] = {}
+    pivots: dict[str, float] = {}
     for name in names:
         missions = missions_of(data_dir, name)
         if not missions:
@@ -146,32 +162,26 @@ def print_readings(data_dir: Path, names: list[str], packs: dict, estimator: str
         print(f"{name}: measured {measured:.3f} Ah, file {battery.capacity_ah:.3f} Ah")
         print("| mission | t s | read % (std) | reference % | read - reference | exponent |")
         print("|---|---|---|---|---|---|")
-        below = []
-        pivot = h.ocv_ageing_pivot_soc
+        below: list[tuple[float, float, float]] = []
+        pivot = h.ocv_ageing_pivot_soc if pivot_soc is None else pivot_soc
+        pivots[battery.chemistry] = pivot
         for r in sorted(readings, key=lambda r: (r.mission, r.t_s)):
             k = "-"
             # a reading at the pivot carries no exponent (the law leaves it where it is)
             informative = abs(r.soc_read - pivot) > 1e-3 and abs(r.soc_ref - pivot) > 1e-3
             if r.soc_read < h.ocv_ageing_below_soc and informative and abs(math.log(ratio)) > 1e-3:
                 k = f"{math.log((r.soc_ref - pivot) / (r.soc_read - pivot)) / math.log(ratio):.2f}"
-                below.append(r)
+                below.append((r.soc_read, r.soc_ref, ratio))
             print(
                 f"| {r.mission} | {r.t_s:.0f} | {100 * r.soc_read:.2f} ({100 * r.soc_std:.2f}) | "
                 f"{100 * r.soc_ref:.2f} | {100 * (r.soc_read - r.soc_ref):+.2f} | {k} |"
             )
         if below:
-            # least squares of s_read ratio^k against s_ref over the readings below
-            fit = minimize_scalar(
-                lambda k, rs=below, x=ratio, p=pivot: sum(
-                    (p + (r.soc_read - p) * x**k - r.soc_ref) ** 2 for r in rs
-                ),
-                bounds=(-2.0, 2.0),
-                method="bounded",
-            )
             print(
                 f"exponent, least squares over the {len(below)} readings below "
-                f"{h.ocv_ageing_below_soc:g}: {fit.x:.3f}"
+                f"{h.ocv_ageing_below_soc:g}: {exponent_fit(below, pivot):.3f}"
             )
+            pooled.setdefault(battery.chemistry, []).extend(below)
         prior_var = (h.capacity_std_frac * battery.capacity_ah) ** 2
         fits = (("as read", made, capacity_ageing(battery)), ("at the reference SoC", truth, None))
         for label, pairs, ageing in fits:
@@ -181,6 +191,11 @@ def print_readings(data_dir: Path, names: list[str], packs: dict, estimator: str
                 f" ({100 * (q / measured - 1):+.1f} %)"
             )
         print()
+    for chemistry, points in pooled.items():
+        print(
+            f"{chemistry}: exponent, least squares over the {len(points)} readings of these "
+            f"packs: {exponent_fit(points, pivots[chemistry]):.3f}"
+        )
 
 
 def life(
@@ -218,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--packs", nargs="*", default=None, help="default: every pack in packs.yaml")
     ap.add_argument("--estimator", default="hybrid")
     ap.add_argument("--readings", action="store_true", help="the rest readings (docstring)")
+    ap.add_argument("--pivot", type=float, help="--readings: the law's pivot SoC (the file's)")
     args = ap.parse_args(argv)
     packs_file = args.data_dir / "packs.yaml"
     if not packs_file.exists():
@@ -226,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     packs = yaml.safe_load(packs_file.read_text())
     names = args.packs or list(packs)
     if args.readings:
-        print_readings(args.data_dir, names, packs, args.estimator)
+        print_readings(args.data_dir, names, packs, args.estimator, args.pivot)
         return 0
     print("| pack | measured Ah | learned Ah after each mission (std) | error | R0 factor |")
     print("|---|---|---|---|---|")

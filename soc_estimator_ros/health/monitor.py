@@ -47,6 +47,12 @@ from .resistance import ResistanceFactor, step_observation
 
 #: Low-pass time constant on the current before the rest test (s), as the hybrid's.
 REST_FILTER_TAU_S = 5.0
+#: A rest, once begun (low-passed current within ``rest_current_c_rate``), ends only beyond
+#: this many times that current. Without the hysteresis a bridge's idle draw near the
+#: threshold ended the rest whenever the sensor's noise crossed it: on ``sla_aged86_tuning``
+#: (50 mA idle + 24 mA offset, the low-passed noise about 9 mA, threshold 99 mA) not one of
+#: six 38-59 min rests reached the 30 minutes of a reading.
+REST_END_FACTOR = 2.0
 #: A learned value is applied once it is this many of its std away from the file's.
 APPLY_SIGMA = 2.0
 #: An anchor whose SoC std is at least this tells nothing (on a plateau): it is not taken.
@@ -65,7 +71,8 @@ class HealthState:
         r0_factor, r0_factor_var: factor on the file's ``R_0`` and its variance.
         serial_number: the pack's serial number ("" if the source sends none).
         stamp_s: stamp of the last sample behind it (s; NaN if none).
-        current_a: that sample's current (A, discharge +; NaN if none).
+        current_a: the current there, low-passed as the rest test's (A, discharge +; NaN if
+            none): one sample's is noise (a 50 mA idle read 160 mA in 40-mA steps).
     """
 
     capacity_ah: float
@@ -203,7 +210,7 @@ class HealthMonitor:
             self.resistance.var,
             self.serial_number,
             self._stamp_s,
-            self._current_a if self._t_s is not None else self._resumed_current_a,
+            self._current_lp_a if self._t_s is not None else self._resumed_current_a,
         )
 
     # -- the stream ---------------------------------------------------------------------------
@@ -229,7 +236,7 @@ class HealthMonitor:
             rested_before = (
                 math.isfinite(gap_s)
                 and gap_s >= h.rest_min_s
-                and abs(self._resumed_current_a) <= rest_a
+                and abs(self._resumed_current_a) <= REST_END_FACTOR * rest_a  # a rest going on
                 and abs(current_a) <= 2.0 * rest_a
             )
             if rested_before:
@@ -280,7 +287,9 @@ class HealthMonitor:
         # Rests: the anchor is the rest's last sample, committed when the rest ends.
         w = 1.0 - math.exp(-dt / REST_FILTER_TAU_S)
         self._current_lp_a += w * (current_a - self._current_lp_a)
-        resting = abs(self._current_lp_a) <= rest_a
+        # A rest starts within rest_a and ends beyond REST_END_FACTOR times it (hysteresis).
+        limit = REST_END_FACTOR * rest_a if self._rest_s > 0.0 else rest_a
+        resting = abs(self._current_lp_a) <= limit
         self._rest_s = self._rest_s + dt if resting else 0.0
         if resting and self._rest_s >= h.rest_min_s and abs(current_a) <= 2.0 * rest_a:
             self._pending = self._rest_anchor(t_s, current_a, voltage_v, temperature_c, soc)
