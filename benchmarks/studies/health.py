@@ -73,6 +73,12 @@ def missions_of(data_dir: Path, pack: str) -> list[Path]:
     return [p for p in found if (p / "bag.yaml").exists()]
 
 
+def split_of(missions: list[Path]) -> str:
+    """The pack's split as its first mission's bag.yaml states it (tuning or validation)."""
+    meta = yaml.safe_load((missions[0] / "bag.yaml").read_text())
+    return str(meta.get("split", "unknown"))
+
+
 def pack_battery(series: BatterySeries, pack: dict | None) -> BatteryParams:
     """The battery file of a mission, scaled to ``pack`` (a ``packs.yaml`` entry: its
     ``cells_in_series`` and ``design_capacity_ah``) when given."""
@@ -159,7 +165,10 @@ def print_readings(
         readings, made, truth, battery = readings_of(missions, estimator, packs[name])
         h = battery.health
         ratio = battery.capacity_ah / measured
-        print(f"{name}: measured {measured:.3f} Ah, file {battery.capacity_ah:.3f} Ah")
+        print(
+            f"{name} ({split_of(missions)}): measured {measured:.3f} Ah, "
+            f"file {battery.capacity_ah:.3f} Ah"
+        )
         print("| mission | t s | read % (std) | reference % | read - reference | exponent |")
         print("|---|---|---|---|---|---|")
         below: list[tuple[float, float, float]] = []
@@ -244,19 +253,24 @@ def main(argv: list[str] | None = None) -> int:
     if args.readings:
         print_readings(args.data_dir, names, packs, args.estimator, args.pivot)
         return 0
-    print("| pack | measured Ah | learned Ah after each mission (std) | error | R0 factor |")
-    print("|---|---|---|---|---|")
+    print(
+        "| pack | split | measured Ah | learned Ah after each mission (std) | error | R0 factor |"
+    )
+    print("|---|---|---|---|---|---|")
     accuracy_rows = []
     for name in names:
         missions = missions_of(args.data_dir, name)
         if not missions:
-            print(f"| {name} | no missions in {args.data_dir} | | | |")
+            print(f"| {name} | | no missions in {args.data_dir} | | | |")
             continue
         measured = float(packs[name]["capacity_ah"])
         learned, last = life(missions, args.estimator, packs[name])
         steps = ", ".join(f"{h.capacity_ah:.3f} ({h.capacity_std_ah:.3f})" for h in learned)
         err = 100.0 * (learned[-1].capacity_ah / measured - 1.0)
-        print(f"| {name} | {measured:.3f} | {steps} | {err:+.1f} % | {learned[-1].r0_factor:.2f} |")
+        print(
+            f"| {name} | {split_of(missions)} | {measured:.3f} | {steps} | {err:+.1f} % | "
+            f"{learned[-1].r0_factor:.2f} |"
+        )
         accuracy_rows.append((name, missions[-1].name, last))
     print()
     print("| mission | " + " | ".join(f"{k} MAE / max %" for k in accuracy_rows[0][2]) + " |")
