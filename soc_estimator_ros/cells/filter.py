@@ -118,6 +118,15 @@ class CellDeltaFilter:
         self._pts = np.empty(3 * n + 1)
         self._r_const = config.voltage_std_v**2
 
+    def start_from(self, x: np.ndarray, p: np.ndarray, elapsed_s: float) -> None:
+        """Resume from a saved state ``x`` (N, 3) and covariance ``p`` (N, 3, 3), ``elapsed_s``
+        after it: ``d``'s random walk over that time is added to its variance (no current is
+        known to have flowed; the pack's own SoC carries what did)."""
+        self.x = np.array(x, dtype=float)
+        self.p = np.array(p, dtype=float)
+        walk = self.config.soc_walk_per_hour**2 * max(elapsed_s, 0.0) / SECONDS_PER_HOUR
+        self.p[:, 0, 0] += walk
+
     def predict(self, current_a: float, dt_s: float) -> None:
         """Eq. (1) over ``dt_s`` with the held ``current_a`` (discharge positive)."""
         if dt_s <= 0.0:

@@ -16,6 +16,14 @@ The state file is a small YAML mapping::
       serial_number: SLA-0042
       stamp_s: 1778152330.1
       current_a: 0.35
+    cells:                 # optional: the cells' deviation filters (cells/filter.py)
+      x: [[0.012, 0.0, 0.0004], ...]          # per cell: d_soc, d_capacity, d_r_ohm
+      p: [[[1.0e-05, 0.0, 0.0], ...], ...]    # per cell: their 3 x 3 covariance
+
+The cells are resumed with the SoC (within ``resume_max_age_s``, for a pack of as many
+cells), their deviations' variance grown by the filter's random walk over the time between
+(``CellDeltaFilter.start_from``): after a restart the weakest cell is still known, instead
+of every cell starting again from its prior until the next long rest.
 
 :func:`save_state` writes it atomically: a temporary file in the same directory is written,
 flushed and ``fsync``-ed, then ``os.replace``-d over the old file, and the directory is
@@ -43,6 +51,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from ..errors import SocEstimatorError
@@ -61,6 +70,27 @@ class StateFileError(SocEstimatorError, ValueError):
 
 
 @dataclass(frozen=True)
+class CellsState:
+    """The cells' deviation filters (``cells/filter.py``): for each cell its state ``x``
+    (``d_soc``, ``d_capacity``, ``d_r_ohm``) and covariance ``p`` (3 x 3)."""
+
+    x: tuple[tuple[float, ...], ...]
+    p: tuple[tuple[tuple[float, ...], ...], ...]
+
+    @classmethod
+    def of_arrays(cls, x: np.ndarray, p: np.ndarray) -> CellsState:
+        """From the filter's arrays, (N, 3) and (N, 3, 3)."""
+        return cls(
+            tuple(tuple(float(v) for v in row) for row in x),
+            tuple(tuple(tuple(float(v) for v in row) for row in cell) for cell in p),
+        )
+
+    @property
+    def cells(self) -> int:
+        return len(self.x)
+
+
+@dataclass(frozen=True)
 class SavedState:
     """What is saved: the SoC, its variance, when, by which estimator, for which battery.
 
@@ -71,6 +101,7 @@ class SavedState:
         estimator: estimator name.
         battery: battery name (``BatteryParams.name``).
         health: what the health monitor learned (None: health learning off).
+        cells: the cells' deviations from the pack (None: no cell voltages in the input).
     """
 
     soc: float
@@ -79,6 +110,7 @@ class SavedState:
     estimator: str
     battery: str
     health: HealthState | None = None
+    cells: CellsState | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The YAML mapping written to the file."""
@@ -95,6 +127,11 @@ class SavedState:
             out["health"] = {
                 **{k: float(getattr(h, k)) for k in _HEALTH_NUMBERS},
                 "serial_number": str(h.serial_number),
+            }
+        if self.cells is not None:
+            out["cells"] = {
+                "x": [list(row) for row in self.cells.x],
+                "p": [[list(row) for row in cell] for cell in self.cells.p],
             }
         return out
 
@@ -208,6 +245,28 @@ def _health(path: Path, raw: Any) -> HealthState:
     return HealthState(serial_number=serial, **values)
 
 
+def _cells(path: Path, raw: Any) -> CellsState:
+    """The ``cells`` mapping of a state file, validated: ``x`` N rows of 3 finite numbers and
+    ``p`` N 3 x 3 blocks of finite numbers with a non-negative diagonal, N >= 2."""
+    if not isinstance(raw, dict):
+        raise StateFileError(path, "cells: expected a mapping")
+    try:
+        x = np.asarray(raw.get("x"), dtype=float)
+        p = np.asarray(raw.get("p"), dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise StateFileError(path, f"cells: expected numbers ({exc})") from exc
+    n = x.shape[0] if x.ndim == 2 else 0
+    if n < 2 or x.shape != (n, 3) or p.shape != (n, 3, 3):
+        raise StateFileError(
+            path, f"cells: x {x.shape} and p {p.shape}: expected (N, 3) and (N, 3, 3), N >= 2"
+        )
+    if not (np.isfinite(x).all() and np.isfinite(p).all()):
+        raise StateFileError(path, "cells: expected finite numbers")
+    if (np.diagonal(p, axis1=1, axis2=2) < 0.0).any():
+        raise StateFileError(path, "cells.p: a negative variance")
+    return CellsState.of_arrays(x, p)
+
+
 def _text(path: Path, raw: dict[str, Any], key: str) -> str:
     value = raw.get(key)
     if not isinstance(value, str) or not value:
@@ -247,6 +306,7 @@ def load_state(path: Path | str) -> SavedState:
         estimator=_text(p, raw, "estimator"),
         battery=_text(p, raw, "battery"),
         health=_health(p, raw["health"]) if "health" in raw else None,
+        cells=_cells(p, raw["cells"]) if "cells" in raw else None,
     )
 
 

@@ -60,7 +60,7 @@ from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
 from ..units import NS_PER_S, SECONDS_PER_HOUR
 from .decimation import Decimator
 from .gate import GateConfig, InputGate, Verdict
-from .persistence import ResumeDecision, SavedState
+from .persistence import CellsState, ResumeDecision, SavedState
 
 #: Minimum SoC std used for (re-)initializations (an OCV on a steep curve is not exact).
 MIN_INIT_SOC_STD = 1e-3
@@ -233,6 +233,9 @@ class Tracker:
         self.cells: CellBank | None = None
         #: Samples whose ``cell_voltage`` held another number of cells (not estimated).
         self.cells_miscounted = 0
+        #: The cells of a resumed state and its age (s), for the bank made on the first
+        #: sample with cell voltages.
+        self._resumed_cells: tuple[CellsState, float] | None = None
         #: The cells after the last accepted sample (None when it carried no cell voltages).
         self.last_cells: CellEstimate | None = None
 
@@ -395,6 +398,10 @@ class Tracker:
             return None
         if self.cells is None:
             self.cells = CellBank(self.battery, n)
+            if self._resumed_cells is not None and self._resumed_cells[0].cells == n:
+                saved, age_s = self._resumed_cells
+                self.cells.filter.start_from(np.array(saved.x), np.array(saved.p), age_s)
+            self._resumed_cells = None
         v = np.asarray(cell_voltage_v, dtype=float)
         return self.cells.step(t_s, current_a, v, est.soc, est.soc_var, held_a)
 
@@ -497,6 +504,8 @@ class Tracker:
                 if decision.state is not None:
                     st = decision.state
                     self.estimator.reset_soc(st.soc, max(math.sqrt(st.soc_var), 1e-6))
+                    if st.cells is not None:
+                        self._resumed_cells = (st.cells, s.stamp_ns / NS_PER_S - st.stamp_s)
                     return Event(Level.INFO, decision.reason)
                 reason = decision.reason
         soc, std = self.soc_from_ocv(s.voltage_v)
@@ -575,6 +584,7 @@ class Tracker:
         and the cells' priors."""
         if self.cells is not None:
             self.cells.reset()
+        self._resumed_cells = None
         if self.health is None:
             return
         self.health.reset(serial_number)
@@ -650,6 +660,9 @@ class Tracker:
             estimator=self.estimator_name,
             battery=self.battery.name,
             health=None if self.health is None else self.health.state(),
+            cells=None
+            if self.cells is None
+            else CellsState.of_arrays(self.cells.filter.x, self.cells.filter.p),
         )
 
     def carried_forward(self, now_steady_s: float) -> tuple[float, float, float]:

@@ -11,6 +11,7 @@ from conftest import REPO_ROOT
 
 from soc_estimator_ros.health import HealthState
 from soc_estimator_ros.tracking.persistence import (
+    CellsState,
     SavedState,
     StateFileError,
     load_state,
@@ -101,8 +102,9 @@ def test_state_file_is_plain_yaml(tmp_path: Path) -> None:
     path = tmp_path / "state.yaml"
     save_state(path, STATE)
     raw = yaml.safe_load(path.read_text())
-    saved = {k: getattr(STATE, k) for k in STATE.__dataclass_fields__ if k != "health"}
-    assert raw == {"format": 1, **saved}  # health is written only when learned (below)
+    optional = ("health", "cells")  # written only when learned or estimated (below)
+    saved = {k: getattr(STATE, k) for k in STATE.__dataclass_fields__ if k not in optional}
+    assert raw == {"format": 1, **saved}
 
 
 def test_a_binary_state_file_is_one_line_and_is_set_aside(tmp_path: Path) -> None:
@@ -186,3 +188,44 @@ def test_health_resumes_whatever_its_age_for_the_same_battery_only(tmp_path: Pat
     assert resume_health(path, STATE.battery) == (None, f"no saved health in {path}")
     missing, reason = resume_health(tmp_path / "none.yaml", STATE.battery)
     assert missing is None and "no such file" in reason
+
+
+CELLS = CellsState(
+    x=((0.012, 0.0, 0.0004), (-0.008, 0.0, -0.0002)),
+    p=(
+        ((1e-5, 2e-7, 0.0), (2e-7, 9e-4, 0.0), (0.0, 0.0, 4e-6)),
+        ((2e-5, 1e-7, 0.0), (1e-7, 9e-4, 0.0), (0.0, 0.0, 4e-6)),
+    ),
+)
+
+
+def test_cells_round_trip_and_a_file_without_them_still_loads(tmp_path: Path) -> None:
+    path = tmp_path / "state.yaml"
+    with_cells = SavedState(**{**STATE.__dict__, "cells": CELLS})
+    save_state(path, with_cells)
+    assert load_state(path) == with_cells  # every number as written (YAML repr is exact)
+    save_state(path, STATE)
+    assert "cells" not in yaml.safe_load(path.read_text()) and load_state(path).cells is None
+
+
+@pytest.mark.parametrize(
+    ("cells", "problem"),
+    [
+        ("[1]", "cells: expected a mapping"),
+        ("{x: [[0, 0, 0]], p: [[[1, 0, 0], [0, 1, 0], [0, 0, 1]]]}", "N >= 2"),
+        ("{x: [[0, 0], [0, 0]], p: [[[1]], [[1]]]}", "expected \\(N, 3\\)"),
+        ("{x: [[0, 0, .nan], [0, 0, 0]], p: [[[1, 0, 0], [0, 1, 0], [0, 0, 1]], "
+         "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]]}", "finite"),
+        ("{x: [[0, 0, 0], [0, 0, 0]], p: [[[-1, 0, 0], [0, 1, 0], [0, 0, 1]], "
+         "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]]}", "negative variance"),
+        ("{x: [[a, 0, 0], [0, 0, 0]], p: []}", "cells: expected numbers"),
+    ],
+)  # fmt: skip
+def test_a_bad_cells_entry_is_a_clear_error(tmp_path: Path, cells: str, problem: str) -> None:
+    path = tmp_path / "state.yaml"
+    path.write_text(
+        "{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: 1, estimator: h, battery: b, "
+        f"cells: {cells}}}"
+    )
+    with pytest.raises(StateFileError, match=problem):
+        load_state(path)

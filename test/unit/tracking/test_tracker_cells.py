@@ -1,6 +1,7 @@
 """The tracker with cell voltages (issue 25): the pack's estimate is the same to the bit with or
 without them, the cells ride beside it, a sample with another cell count is not estimated,
-and without cell voltages nothing changes (``StepResult.cells`` None, ``usable_soc`` the SoC)."""
+and without cell voltages nothing changes (``StepResult.cells`` None, ``usable_soc`` the SoC);
+a restart resumes the cells with the SoC."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.recordings import read_battery_bag
 from soc_estimator_ros.series import BatterySeries
 from soc_estimator_ros.tracking import GateConfig, Sample, Tracker, TrackerConfig
+from soc_estimator_ros.tracking.persistence import resume_decision, save_state
 
 LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
 N = 1500
@@ -70,3 +72,47 @@ def test_another_cell_count_is_not_estimated() -> None:
     r = tr.process(Sample(1_000_000_000, 0.3, 13.2, cell_voltage_v=(3.3, 3.3, 3.3)))
     assert r.accepted and r.cells is None
     assert tr.cells_miscounted == 1
+
+
+def test_the_cells_resume_with_the_soc(tmp_path) -> None:
+    # A restart keeps the cells' deviations: the saved state carries them, the new tracker's
+    # bank starts from them with d's variance grown by its random walk over the time between
+    # (exact arithmetic: the same numbers through YAML, which writes floats exactly).
+    tr, _ = run(True)
+    saved = tr.saved_state()
+    assert saved is not None and saved.cells is not None and saved.cells.cells == 4
+    x0 = np.array(saved.cells.x)
+    assert np.abs(x0[:, 0]).max() > 1e-4  # the deviations moved from their prior of 0
+    path = tmp_path / "state.yaml"
+    save_state(path, saved)
+    gap_s = 600.0
+    s = series()
+    stamp_ns = int(s.stamp_ns[-1]) + int(gap_s * 1e9)
+    resumed = Tracker(
+        LFP,
+        GateConfig.from_limits(LFP.limits),
+        TrackerConfig(initial_soc="resume"),
+        resume=lambda now_s: resume_decision(path, now_s, 3600.0, LFP.name),
+    )
+    cells_v = tuple(float(v) for v in s.cell_voltage_v[-1])
+    resumed.process(Sample(stamp_ns, 0.3, float(s.voltage_v[-1]), 25.0, cell_voltage_v=cells_v))
+    assert resumed.cells is not None
+    f = resumed.cells.filter
+    walk = LFP.cells.soc_walk_per_hour**2 * gap_s / 3600.0
+    # The bank's first sample has no predict (no sample before it) and no rest long enough
+    # for an update (60 s), so it holds what was resumed: x as saved (to the bit, YAML writes floats
+    # exactly), d's variance grown by the walk over the gap.
+    np.testing.assert_array_equal(f.x, x0)
+    np.testing.assert_array_equal(f.p[:, 0, 0], np.array(saved.cells.p)[:, 0, 0] + walk)
+    # A pack of another cell count (or no saved cells) starts from the priors.
+    other = Tracker(
+        LFP,
+        GateConfig.from_limits(LFP.limits),
+        TrackerConfig(initial_soc="resume"),
+        resume=lambda now_s: resume_decision(path, now_s, 3600.0, LFP.name),
+    )
+    for k in range(2):
+        other.process(
+            Sample(stamp_ns + k * 1_000_000_000, 0.3, 13.2, 25.0, cell_voltage_v=(3.3,) * 3)
+        )
+    assert other.cells is None and other.cells_miscounted >= 1
