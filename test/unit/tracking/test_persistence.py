@@ -165,10 +165,15 @@ def test_health_round_trips_and_a_file_without_it_still_loads(tmp_path: Path) ->
     ],
 )  # fmt: skip
 def test_a_bad_health_entry_is_a_clear_error(tmp_path: Path, health: str, problem: str) -> None:
+    check_bad_entry(tmp_path, "health", health, problem)
+
+
+def check_bad_entry(tmp_path: Path, key: str, entry: str, problem: str) -> None:
+    """A state file valid but for its ``key`` entry fails to load, naming ``problem``."""
     path = tmp_path / "state.yaml"
     path.write_text(
         "{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: 1, estimator: h, battery: b, "
-        f"health: {health}}}"
+        f"{key}: {entry}}}"
     )
     with pytest.raises(StateFileError, match=problem):
         load_state(path)
@@ -222,10 +227,4 @@ def test_cells_round_trip_and_a_file_without_them_still_loads(tmp_path: Path) ->
     ],
 )  # fmt: skip
 def test_a_bad_cells_entry_is_a_clear_error(tmp_path: Path, cells: str, problem: str) -> None:
-    path = tmp_path / "state.yaml"
-    path.write_text(
-        "{format: 1, soc: 0.5, soc_var: 0.1, stamp_s: 1, estimator: h, battery: b, "
-        f"cells: {cells}}}"
-    )
-    with pytest.raises(StateFileError, match=problem):
-        load_state(path)
+    check_bad_entry(tmp_path, "cells", cells, problem)
