@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import math
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -49,7 +50,7 @@ from soc_estimator_ros.health import CapacityPair, fit_capacity
 from soc_estimator_ros.health.monitor import capacity_ageing
 from soc_estimator_ros.params import BatteryParams, load_battery_params
 from soc_estimator_ros.recordings import read_recording
-from soc_estimator_ros.replay.run import battery_file_for, replay_estimator
+from soc_estimator_ros.replay.run import ReplayResult, battery_file_for, replay_estimator
 from soc_estimator_ros.scaling import scale_to_pack
 from soc_estimator_ros.series import BatterySeries
 from soc_estimator_ros.tracking.persistence import load_state
@@ -103,15 +104,12 @@ def ref_soc_at(series: BatterySeries, t_s: float) -> float:
     return float(np.asarray(series.soc_ref)[k])
 
 
-def readings_of(
+def replayed(
     missions: list[Path], estimator: str, pack: dict | None
-) -> tuple[list[Reading], list[CapacityPair], list[CapacityPair], BatteryParams]:
-    """The missions replayed in order with one state file (as :func:`life`); every reading
-    of the capacity's pairs against the reference SoC, the pairs as made and the same pairs
-    with the reference's SoC in place of the readings."""
-    readings: dict[tuple[str, float], Reading] = {}
-    made: list[CapacityPair] = []
-    truth: list[CapacityPair] = []
+) -> Iterator[tuple[Path, BatterySeries, BatteryParams, ReplayResult, Path]]:
+    """The missions replayed in order through ``estimator`` with one state file, as
+    ``soc_replay --state FILE`` does (``pack``: the ``packs.yaml`` entry the file is scaled
+    to): each mission's path, recording, battery file, result and the state file after it."""
     with tempfile.TemporaryDirectory() as tmp:
         state = Path(tmp) / "state.yaml"
         for path in missions:
@@ -120,22 +118,38 @@ def readings_of(
             result = replay_estimator(
                 series, battery, estimator, INITIAL_SOC, path.name, state=state
             )
-            for p in result.health_pairs:
-                for t_s, s, var in (
-                    (p.t_from_s, p.soc_from, p.soc_from_var),
-                    (p.t_to_s, p.soc_to, p.soc_to_var),
-                ):
-                    readings[(path.name, t_s)] = Reading(
-                        path.name, t_s, s, math.sqrt(var), ref_soc_at(series, t_s)
-                    )
-                made.append(p)
-                truth.append(
-                    replace(
-                        p,
-                        soc_from=ref_soc_at(series, p.t_from_s),
-                        soc_to=ref_soc_at(series, p.t_to_s),
-                    )
+            yield path, series, battery, result, state
+
+
+def readings_of(
+    missions: list[Path], estimator: str, pack: dict | None
+) -> tuple[list[Reading], list[CapacityPair], list[CapacityPair], BatteryParams]:
+    """Every reading of the capacity's pairs over the pack's life (:func:`replayed`) against
+    the reference SoC, the pairs as made and the same pairs with the reference's SoC in place
+    of the readings, and the battery file."""
+    readings: dict[tuple[str, float], Reading] = {}
+    made: list[CapacityPair] = []
+    truth: list[CapacityPair] = []
+    battery: BatteryParams | None = None
+    for path, series, mission_battery, result, _ in replayed(missions, estimator, pack):
+        battery = mission_battery  # the same file for every mission of one pack
+        for p in result.health_pairs:
+            for t_s, s, var in (
+                (p.t_from_s, p.soc_from, p.soc_from_var),
+                (p.t_to_s, p.soc_to, p.soc_to_var),
+            ):
+                readings[(path.name, t_s)] = Reading(
+                    path.name, t_s, s, math.sqrt(var), ref_soc_at(series, t_s)
                 )
+            made.append(p)
+            truth.append(
+                replace(
+                    p,
+                    soc_from=ref_soc_at(series, p.t_from_s),
+                    soc_to=ref_soc_at(series, p.t_to_s),
+                )
+            )
+    assert battery is not None  # missions is not empty (missions_of)
     return list(readings.values()), made, truth, battery
 
 
@@ -210,29 +224,21 @@ def print_readings(
 def life(
     missions: list[Path], estimator: str, pack: dict | None = None
 ) -> tuple[list[Learned], dict[str, Accuracy]]:
-    """The missions replayed in order with one state file; the health after each and the
-    last mission's accuracy with health, without it, and by coulomb counting (``pack``: the
-    ``packs.yaml`` entry the file is scaled to)."""
+    """The pack's life (:func:`replayed`): the health after each mission and the last
+    mission's accuracy with health, without it, and by coulomb counting."""
     learned: list[Learned] = []
     last: dict[str, Accuracy] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        state = Path(tmp) / "state.yaml"
-        for k, path in enumerate(missions):
-            series = read_recording(path)
-            battery = pack_battery(series, pack)
-            result = replay_estimator(
-                series, battery, estimator, INITIAL_SOC, path.name, state=state
-            )
-            h = load_state(state).health
-            assert h is not None  # replay_estimator with a state file writes the health
-            learned.append(
-                Learned(path.name, h.capacity_ah, math.sqrt(h.capacity_var_ah2), h.r0_factor)
-            )
-            if k == len(missions) - 1:
-                last[f"{estimator} + health"] = result.accuracy
-                for name in (estimator, "coulomb"):
-                    plain = replay_estimator(series, battery, name, INITIAL_SOC, path.name)
-                    last[name] = plain.accuracy
+    for path, series, battery, result, state in replayed(missions, estimator, pack):
+        h = load_state(state).health
+        assert h is not None  # replay_estimator with a state file writes the health
+        learned.append(
+            Learned(path.name, h.capacity_ah, math.sqrt(h.capacity_var_ah2), h.r0_factor)
+        )
+        if path == missions[-1]:
+            last[f"{estimator} + health"] = result.accuracy
+            for name in (estimator, "coulomb"):
+                plain = replay_estimator(series, battery, name, INITIAL_SOC, path.name)
+                last[name] = plain.accuracy
     return learned, last
 
 
