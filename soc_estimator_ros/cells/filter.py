@@ -49,6 +49,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..models.ocv import OcvCurve
 from ..units import SECONDS_PER_HOUR
@@ -118,7 +119,7 @@ class CellDeltaFilter:
         self._pts = np.empty(3 * n + 1)
         self._r_const = config.voltage_std_v**2
 
-    def start_from(self, x: np.ndarray, p: np.ndarray, elapsed_s: float) -> None:
+    def start_from(self, x: ArrayLike, p: ArrayLike, elapsed_s: float) -> None:
         """Resume from a saved state ``x`` (N, 3) and covariance ``p`` (N, 3, 3), ``elapsed_s``
         after it: ``d``'s random walk over that time is added to its variance (no current is
         known to have flowed; the pack's own SoC carries what did)."""

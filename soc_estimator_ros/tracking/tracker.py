@@ -400,7 +400,7 @@ class Tracker:
             self.cells = CellBank(self.battery, n)
             if self._resumed_cells is not None and self._resumed_cells[0].cells == n:
                 saved, age_s = self._resumed_cells
-                self.cells.filter.start_from(np.array(saved.x), np.array(saved.p), age_s)
+                self.cells.filter.start_from(saved.x, saved.p, age_s)
             self._resumed_cells = None
         v = np.asarray(cell_voltage_v, dtype=float)
         return self.cells.step(t_s, current_a, v, est.soc, est.soc_var, held_a)
