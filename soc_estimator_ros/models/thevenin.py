@@ -64,7 +64,7 @@ import numpy as np
 
 from ..units import SECONDS_PER_HOUR
 from .coulomb import coulomb_efficiency, coulomb_efficiency_lanes
-from .ocv import OcvCurve
+from .ocv import UNINFORMATIVE_SOC_STD, OcvCurve
 from .tables import LaneTables, ParamTable
 
 
@@ -676,11 +676,81 @@ class TheveninModel:
         v = self.terminal_voltage(x, current_a, temperature_c, sum(z))
         return (v_rest - v) / current_a
 
+    def soc_at_terminal_voltage(
+        self,
+        voltage_v: float,
+        current_a: float,
+        voltage_std_v: float,
+        temperature_c: float | None = None,
+    ) -> tuple[float, float]:
+        """The SoC (clipped to [0, 1]) whose terminal voltage at ``current_a`` is
+        ``voltage_v`` when the pack's history is unknown (a start, a reset), and its std.
+
+        Eq. 14 with the branches unknown: the instantaneous drop ``I R_0 + eta(I)`` is there
+        from the first sample, the branches lie anywhere from relaxed (a load just switched on)
+        to their steady state ``R_i I_i`` (a load held for minutes), so they are taken at half
+        of it, with the std of a uniform spread over that range (``sum R_i I_i / sqrt(12)``),
+        added to ``voltage_std_v``. Outside the trusted temperatures (:meth:`extrapolation_c`)
+        the drop is an extrapolation, not a measurement: its whole size joins the std. The
+        surface lag (its steady offset a few thousandths of SoC at a robot's idle current) is
+        left out. At rest this is the OCV curve (with its temperature offset) read backwards.
+
+        The tables vary with the SoC, so the equation is solved on a grid of
+        :data:`READING_GRID` SoC points, not by iterating the drop at the SoC read (which
+        oscillates on LFP's plateau, where the OCV moves less than the drop's tables do): the
+        root is interpolated between the grid points that bracket it; where several do, the
+        SoC is the middle of the outer two and the std at least half their span; the std is
+        the voltage's over the slope at the root, capped at ``UNINFORMATIVE_SOC_STD``.
+        """
+        grid = _READING_SOC
+        v = self.ocv.ocv_array(grid)
+        if self.ocv_offset is not None:
+            v = v + self.ocv_offset.at_array(grid, temperature_c)
+        unknown_v = np.zeros_like(grid)
+        if current_a != 0.0:
+            f = self.resistance_factor(temperature_c) if self._arrhenius else 1.0
+            branches_v = np.zeros_like(grid)  # their steady state, sum R_i I_i
+            for b in self.params.branches:
+                r_ohm = f * b.r_ohm.at_array(grid, temperature_c)
+                branches_v = branches_v + r_ohm * b.drive_array(grid, current_a, temperature_c)
+            drop_v = self.series_drop_array(grid, current_a, temperature_c) + 0.5 * branches_v
+            v = v - drop_v
+            unknown_v = np.abs(branches_v) / math.sqrt(12.0)
+            if self.extrapolation_c(temperature_c) != 0.0:
+                unknown_v = np.hypot(unknown_v, drop_v)
+        std_v = np.hypot(voltage_std_v, unknown_v)
+        above = v > voltage_v
+        if np.all(above):  # below the whole curve: empty
+            return 0.0, float(min(std_v[0] / max(_slope(v, 0), 1e-12), UNINFORMATIVE_SOC_STD))
+        if not np.any(above):  # above it: full
+            k = len(grid) - 2
+            return 1.0, float(min(std_v[-1] / max(_slope(v, k), 1e-12), UNINFORMATIVE_SOC_STD))
+        cross = np.flatnonzero(above[:-1] != above[1:])
+        d = v - voltage_v
+        roots = grid[cross] - d[cross] * (grid[cross + 1] - grid[cross]) / (d[cross + 1] - d[cross])
+        lo, hi = float(roots[0]), float(roots[-1])
+        soc = 0.5 * (lo + hi)
+        k = int(cross[np.argmin(np.abs(roots - soc))])
+        slope = abs(_slope(v, k))
+        std = float(std_v[k]) / slope if slope > 0.0 else UNINFORMATIVE_SOC_STD
+        return soc, float(min(max(std, 0.5 * (hi - lo)), UNINFORMATIVE_SOC_STD))
+
     def rested_state(self, soc: float) -> np.ndarray:
         """State of a pack at rest (branch voltages relaxed to zero)."""
         x = np.zeros(self.dim_x)
         x[0] = soc
         return x
+
+
+#: The SoC grid :meth:`TheveninModel.soc_at_terminal_voltage` solves on: 0.0025 apart, finer
+#: than the bundled files' OCV tables (0.025) and resistance tables (about 0.1).
+READING_GRID = 401
+_READING_SOC = np.linspace(0.0, 1.0, READING_GRID)
+
+
+def _slope(v: np.ndarray, k: int) -> float:
+    """The grid's chord slope (V per unit SoC) between points ``k`` and ``k + 1``."""
+    return float((v[k + 1] - v[k]) / (_READING_SOC[k + 1] - _READING_SOC[k]))
 
 
 def _each(fn, x: np.ndarray) -> np.ndarray:

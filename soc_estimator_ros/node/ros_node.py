@@ -531,7 +531,8 @@ class SocEstimatorNode(Node):
         )
         if abs(last.current_a) > self._param("idle_current_a"):
             response.message += (
-                f" (warning: under load, {last.current_a:.2f} A; the voltage is not a rest OCV)"
+                f" (warning: under load, {last.current_a:.2f} A; read through the battery "
+                "file's model, its relaxation unknown: a rest reads the OCV better)"
             )
         self.get_logger().info(response.message)
         return response

@@ -21,8 +21,9 @@ What it owns, besides the estimator and the gate:
   since (the best knowledge of the real interval): the estimator bridges it as a step or a gap
   (``TimePolicy``), so the SoC moves only by the charge the current can explain over it.
 * **Initialization** on the first accepted sample: a given SoC, the OCV of that sample's
-  voltage (``"ocv"``), or a saved state (``"resume"``, through the ``resume`` callback) with an
-  OCV fallback.
+  voltage (``"ocv"``: read through the file's model at the sample's current and temperature,
+  :meth:`Tracker.soc_from_ocv`), or a saved state (``"resume"``, through the ``resume``
+  callback) with an OCV fallback.
 * **Run-time control**: reset to a SoC, reset from the OCV, switch estimator (keeping SoC,
   variance, time base and current), recover from an estimator exception.
 * **Counts**: the gate's verdicts, ignored temperatures, and samples missing from the stamps
@@ -55,6 +56,7 @@ from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
 from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
 from ..health import HealthMonitor, HealthState
 from ..models.coulomb import coulomb_efficiency
+from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
 from ..units import NS_PER_S, SECONDS_PER_HOUR
@@ -194,6 +196,7 @@ class Tracker:
         self._resume = resume
         self._steady = steady_clock
         self._ocv = battery.ocv_curve()
+        self._model = battery.thevenin_model() if battery.thevenin is not None else None
         init = self.config.initial_soc
         self._initial: InitialSoc = init
         soc0 = float(init) if not isinstance(init, str) else 0.5
@@ -485,9 +488,24 @@ class Tracker:
         return self._period_s
 
     # -- initialization and control -----------------------------------------------------------
-    def soc_from_ocv(self, voltage_v: float) -> tuple[float, float]:
-        """The SoC (clipped to [0, 1]) and its std read from ``voltage_v`` as an OCV."""
-        soc, std = self._ocv.soc_at_with_std(voltage_v, self.config.ocv_voltage_std_v)
+    def soc_from_ocv(
+        self, voltage_v: float, current_a: float = 0.0, temperature_c: float = math.nan
+    ) -> tuple[float, float]:
+        """The SoC (clipped to [0, 1]) and its std read from ``voltage_v``, measured at
+        ``current_a`` and ``temperature_c``, as an OCV: through the file's model where it has
+        one (``TheveninModel.soc_at_terminal_voltage``: the drop the current causes and the
+        temperature's offset taken out, the relaxation no one knows at a start added to the
+        std), the raw voltage on the OCV curve else."""
+        std_v = self.config.ocv_voltage_std_v
+        # The estimator's own model where it has one: it carries the learned health (health/).
+        model = getattr(self.estimator, "model", None)
+        if not isinstance(model, TheveninModel):
+            model = self._model
+        if model is None:
+            soc, std = self._ocv.soc_at_with_std(voltage_v, std_v)
+        else:
+            temp = None if math.isnan(temperature_c) else temperature_c
+            soc, std = model.soc_at_terminal_voltage(voltage_v, current_a, std_v, temp)
         return min(max(soc, 0.0), 1.0), max(std, MIN_INIT_SOC_STD)
 
     def _initialize(self, s: Sample) -> Event:
@@ -508,7 +526,7 @@ class Tracker:
                         self._resumed_cells = (st.cells, s.stamp_ns / NS_PER_S - st.stamp_s)
                     return Event(Level.INFO, decision.reason)
                 reason = decision.reason
-        soc, std = self.soc_from_ocv(s.voltage_v)
+        soc, std = self.soc_from_ocv(s.voltage_v, s.current_a, s.temperature_c)
         self.estimator.reset_soc(soc, std)
         start = f"SoC {soc:.4f} (std {std:.4f}) from the OCV at {s.voltage_v:.3f} V"
         if init == "resume":
@@ -536,7 +554,7 @@ class Tracker:
         last = self.last_sample
         if last is None:
             raise LookupError("no accepted sample yet: no voltage to read as an OCV")
-        soc, std = self.soc_from_ocv(last.voltage_v)
+        soc, std = self.soc_from_ocv(last.voltage_v, last.current_a, last.temperature_c)
         self.estimator.reset_soc(soc, std)
         self.revision += 1
         return soc, std, last

@@ -23,14 +23,15 @@ MISSIONS = ("lfp4s_cells_1_full", "lfp4s_cells_2_partial", "lfp4s_cells_3_cold")
 
 #: Targets measured missed, (mission, target) -> the measured numbers (strict xfails: a target
 #: met again fails until its entry goes). The cold mission's misses are the pack's own: the
-#: hybrid starts from the 5 degC OCV at 0.762 (the cells' mean 0.889), and a cell's SoC is the
-#: pack's plus its deviation (docs/cells.md).
+#: hybrid starts from the 5 degC OCV 4.9 points above the pack's SoC, on LFP's flat top where
+#: nothing corrects it before the step near 0.75, and a cell's SoC is the pack's plus its
+#: deviation (docs/cells.md).
 MISSED: dict[tuple[str, str], str] = {
-    ("lfp4s_cells_2_partial", "per-cell MAE"): "measured cell MAE % 1.37 1.51 1.13 1.22: "
-    "cell 2 above 1.5",
-    ("lfp4s_cells_3_cold", "per-cell MAE"): "measured cell MAE % 3.38 1.95 3.48 2.33: the "
+    ("lfp4s_cells_2_partial", "per-cell MAE"): "measured cell MAE % 1.36 1.50 1.14 1.22: "
+    "cell 2 at 1.5009, above 1.5",
+    ("lfp4s_cells_3_cold", "per-cell MAE"): "measured cell MAE % 1.99 1.24 2.48 1.41: the "
     "pack's hybrid off the cells' mean (cold OCV start)",
-    ("lfp4s_cells_3_cold", "usable MAE"): "measured usable MAE 2.96 %: the pack's hybrid "
+    ("lfp4s_cells_3_cold", "usable MAE"): "measured usable MAE 1.96 %: the pack's hybrid "
     "off the cells' mean (cold OCV start)",
 }
 

@@ -265,7 +265,8 @@ def test_reset_from_ocv_service_and_reset_parameter(make_harness, battery):
     resp = h.trigger("reset_soc_from_ocv")
     assert resp.success, resp.message
     v_rest = float(np.float32(12.45))  # what a float32 message carries
-    ocv_soc, ocv_std = battery.ocv_curve().soc_at_with_std(v_rest, 0.05)
+    # The tracker's reading at rest and 25 degC: the file's model, read backwards.
+    ocv_soc, ocv_std = battery.thevenin_model().soc_at_terminal_voltage(v_rest, 0.0, 0.05, 25.0)
     assert h.node.tracker.estimator.soc == pytest.approx(ocv_soc, abs=1e-9)
     assert h.node.tracker.estimator.soc_var == pytest.approx(max(ocv_std, 1e-3) ** 2, rel=1e-9)
     h.send([state_msg(T0 + 2 * S + k * S // 10, 12.45, 0.0) for k in range(5)])
@@ -312,7 +313,8 @@ def test_state_is_saved_on_shutdown_and_resumed(make_harness, tmp_path, battery)
     c = make_harness(estimator="hybrid", initial_soc="resume", state_file=str(state_file),
                      resume_max_age_s=600.0)  # fmt: skip
     c.send([state_msg(T0, 12.5, 0.0)])
-    soc, std = battery.ocv_curve().soc_at_with_std(12.5, 0.05)
+    v = float(np.float32(12.5))
+    soc, std = battery.thevenin_model().soc_at_terminal_voltage(v, 0.0, 0.05, 25.0)
     fallback = make_estimator("hybrid", battery, 0.5)
     fallback.reset_soc(soc, max(std, 1e-3))
     out = decode_estimate(c.est[-1])["soc"]

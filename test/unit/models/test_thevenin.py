@@ -313,3 +313,56 @@ def test_tables_and_the_ocv_at_each_sample_are_their_scalar_values_to_the_bit() 
         scalar = [table.at(s, None if np.isnan(t) else t) for s, t in pairs]
         assert np.array_equal(each, scalar), table
     assert np.array_equal(OCV.ocv_each(soc), [OCV.ocv(float(s)) for s in soc])
+
+
+def test_a_voltage_under_load_reads_back_as_its_soc() -> None:
+    """A terminal voltage made by eq. 14 with the branches half-way to their steady state reads
+    back as its SoC; at rest the reading is the OCV curve's inverse. Tolerance 1e-4: the
+    root is interpolated between grid points 0.0025 apart on a smooth curve (chord error
+    max|V''| h^2 / 8, below 1e-5 of SoC here)."""
+    model = make_model(2, np.random.default_rng(7))
+    soc, current_a, std_v = 0.6, 8.0, 0.05
+    steady = [b.r_ohm.at(soc) * current_a for b in model.params.branches]
+    x = np.array([soc, *(0.5 * v for v in steady)])
+    read, std = model.soc_at_terminal_voltage(
+        model.terminal_voltage(x, current_a), current_a, std_v
+    )
+    assert read == pytest.approx(soc, abs=1e-4)
+    # The voltage's std and the branches' uniform spread, over the slope (tables constant in
+    # SoC here: the slope is the OCV's); 1 %: the slope is the grid's chord, not the tangent.
+    expected = np.hypot(std_v, sum(steady) / np.sqrt(12.0)) / OCV.slope(soc)
+    assert std == pytest.approx(expected, rel=0.01)
+    rest, _ = model.soc_at_terminal_voltage(OCV.ocv(0.35), 0.0, std_v)
+    assert rest == pytest.approx(0.35, abs=1e-4)
+
+
+def test_a_reading_outside_the_trusted_temperatures_knows_no_drop() -> None:
+    """Beyond the tables' temperatures (and their margin) the whole modelled drop joins the
+    std: it is extrapolated there, not measured (the tables are the same at both temperatures,
+    so the SoC read and the slope are too, and the stds differ by the drop alone)."""
+    base = make_model(1, np.random.default_rng(8))
+    r0 = ParamTable((0.0, 1.0), ((0.02, 0.02), (0.02, 0.02)), temperature_c=(5.0, 25.0))
+    model = TheveninModel(OCV, TheveninParams(r0, base.params.branches), capacity_ah=5.0)
+    current_a, std_v, v = 5.0, 0.02, OCV.ocv(0.5) - 0.2
+    soc_in, inside = model.soc_at_terminal_voltage(v, current_a, std_v, 15.0)
+    soc_out, outside = model.soc_at_terminal_voltage(v, current_a, std_v, -10.0)
+    assert soc_in == soc_out
+    known_v = np.hypot(std_v, model.params.branches[0].r_ohm.at(soc_in) * current_a / np.sqrt(12))
+    drop_v = current_a * 0.02 + 0.5 * model.params.branches[0].r_ohm.at(soc_in) * current_a
+    assert outside / inside == pytest.approx(np.hypot(known_v, drop_v) / known_v, rel=1e-9)
+
+
+def test_a_reading_met_at_several_socs_spans_them_all() -> None:
+    """Where the drop's tables make the voltage under load fall and rise again over the SoC (a
+    flat OCV, R_0 three times higher mid-way), one reading is met at several SoCs: every one
+    of them, found here by a scan 100 times finer, lies within the std of the result."""
+    flat = OcvCurve([0.0, 0.3, 0.5, 0.7, 1.0], [12.0, 13.0, 13.005, 13.01, 13.4])
+    r0 = ParamTable((0.3, 0.5, 0.7), ((0.01, 0.03, 0.01),))
+    model = TheveninModel(flat, TheveninParams(r0, ()), capacity_ah=5.0)
+    current_a, reading_v = 10.0, 12.805
+    soc, std = model.soc_at_terminal_voltage(reading_v, current_a, 0.001)
+    fine = np.linspace(0.0, 1.0, 40_001)
+    v = np.array([model.terminal_voltage(np.array([s]), current_a) for s in fine])
+    roots = fine[np.flatnonzero(np.diff(np.sign(v - reading_v)))]
+    assert len(roots) == 3  # the steep part below 0.3, and either side of the dip
+    assert np.all(np.abs(roots - soc) <= std + 0.0025)  # + one grid step of the search

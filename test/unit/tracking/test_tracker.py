@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REPO_ROOT
 
@@ -167,6 +168,25 @@ def test_ocv_initialization_and_the_event_saying_so() -> None:
     assert r.estimate is not None
     assert "from the OCV" in r.events[0].message
     assert r.estimate.soc == pytest.approx(soc, abs=0.02)  # one update step after the reset
+
+
+def test_a_start_under_load_reads_the_voltage_through_the_model() -> None:
+    """The first sample at 10 A: its voltage is the file's model at 70 % with the branches
+    half-way to their steady state (a load held for a while). Read through the model the start
+    is 70 % (0.005: the reading's SoC grid, 0.0025); read as an OCV it would be 40 points low
+    (the drop at 10 A is about 0.6 V on a 1.5 V-per-unit curve)."""
+    tracker, clock = make(TrackerConfig(estimator="coulomb", initial_soc="ocv"))
+    model = SLA.thevenin_model()
+    soc, current_a = 0.7, 10.0
+    x = [soc]
+    for i, b in enumerate(model.params.branches):
+        r_ohm, _ = model.branch_at(i, soc, 25.0)
+        x.append(0.5 * r_ohm * b.drive_a(soc, current_a, 25.0))
+    v = model.terminal_voltage(np.array(x), current_a, 25.0)
+    r = feed(tracker, clock, [T0_NS], current_a=current_a, voltage_v=v)[0]
+    assert "from the OCV" in r.events[0].message
+    assert tracker.soc == pytest.approx(soc, abs=0.005)
+    assert tracker.soc_from_ocv(v)[0] < soc - 0.3  # the same voltage at rest
 
 
 def test_resume_uses_a_recent_state_and_falls_back_to_the_ocv(tmp_path: Path) -> None:
