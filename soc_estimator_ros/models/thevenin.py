@@ -699,8 +699,10 @@ class TheveninModel:
         :data:`READING_GRID` SoC points, not by iterating the drop at the SoC read (which
         oscillates on LFP's plateau, where the OCV moves less than the drop's tables do): the
         root is interpolated between the grid points that bracket it; where several do, the
-        SoC is the middle of the outer two and the std at least half their span; the std is
-        the voltage's over the slope at the root, capped at ``UNINFORMATIVE_SOC_STD``.
+        SoC is the middle of the outer two and the std at least half their span. The std is
+        the voltage's over the slope at the root, or, if larger, the distance to the farthest
+        SoC whose voltage lies within one std of the reading; capped at
+        ``UNINFORMATIVE_SOC_STD``.
         """
         grid = _READING_SOC
         v = self.ocv.ocv_array(grid)
@@ -733,6 +735,12 @@ class TheveninModel:
         k = int(cross[np.argmin(np.abs(roots - soc))])
         slope = abs(_slope(v, k))
         std = float(std_v[k]) / slope if slope > 0.0 else UNINFORMATIVE_SOC_STD
+        # The SoCs the reading cannot tell from the root, within one std of the voltage: a curve
+        # that bends within its own std (LFP's plateau) is read across them, not at the root's
+        # slope alone (``OcvCurve.soc_at_with_interval_std``'s reason).
+        near = np.flatnonzero(np.abs(d) <= std_v)
+        if near.size:
+            std = max(std, soc - float(grid[near[0]]), float(grid[near[-1]]) - soc)
         return soc, float(min(max(std, 0.5 * (hi - lo)), UNINFORMATIVE_SOC_STD))
 
     def rested_state(self, soc: float) -> np.ndarray:

@@ -366,3 +366,17 @@ def test_a_reading_met_at_several_socs_spans_them_all() -> None:
     roots = fine[np.flatnonzero(np.diff(np.sign(v - reading_v)))]
     assert len(roots) == 3  # the steep part below 0.3, and either side of the dip
     assert np.all(np.abs(roots - soc) <= std + 0.0025)  # + one grid step of the search
+
+
+def test_a_reading_on_a_bending_curve_spans_the_socs_within_its_std() -> None:
+    """Where the curve bends within the reading's std (a flat plateau), the std reaches every
+    SoC whose voltage lies within one std of the reading (a scan 100 times finer finds them;
+    0.0025: one step of the search's grid), beyond what the slope at the root says."""
+    flat = OcvCurve([0.0, 0.3, 0.5, 0.7, 1.0], [12.0, 13.0, 13.005, 13.01, 13.4])
+    model = TheveninModel(flat, TheveninParams(ParamTable.constant(0.01), ()), capacity_ah=5.0)
+    reading_v, std_v = 13.0075, 0.002
+    soc, std = model.soc_at_terminal_voltage(reading_v, 0.0, std_v)
+    fine = np.linspace(0.0, 1.0, 40_001)
+    near = fine[np.abs(np.array([flat.ocv(s) for s in fine]) - reading_v) <= std_v]
+    assert std >= max(soc - near[0], near[-1] - soc) - 0.0025
+    assert std > 1.1 * std_v / flat.slope(soc)  # the slope alone says 0.086, the scan 0.103
