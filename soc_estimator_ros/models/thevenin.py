@@ -721,14 +721,14 @@ class TheveninModel:
             if self.extrapolation_c(temperature_c) != 0.0:
                 unknown_v = np.hypot(unknown_v, drop_v)
         std_v = np.hypot(voltage_std_v, unknown_v)
-        above = v > voltage_v
+        d = v - voltage_v
+        above = d > 0.0
         if np.all(above):  # below the whole curve: empty
             return 0.0, float(min(std_v[0] / max(_slope(v, 0), 1e-12), UNINFORMATIVE_SOC_STD))
         if not np.any(above):  # above it: full
             k = len(grid) - 2
             return 1.0, float(min(std_v[-1] / max(_slope(v, k), 1e-12), UNINFORMATIVE_SOC_STD))
         cross = np.flatnonzero(above[:-1] != above[1:])
-        d = v - voltage_v
         roots = grid[cross] - d[cross] * (grid[cross + 1] - grid[cross]) / (d[cross + 1] - d[cross])
         lo, hi = float(roots[0]), float(roots[-1])
         soc = 0.5 * (lo + hi)

@@ -195,8 +195,6 @@ class Tracker:
         self.gate = InputGate(gate)
         self._resume = resume
         self._steady = steady_clock
-        self._ocv = battery.ocv_curve()
-        self._model = battery.thevenin_model() if battery.thevenin is not None else None
         init = self.config.initial_soc
         self._initial: InitialSoc = init
         soc0 = float(init) if not isinstance(init, str) else 0.5
@@ -492,20 +490,18 @@ class Tracker:
         self, voltage_v: float, current_a: float = 0.0, temperature_c: float = math.nan
     ) -> tuple[float, float]:
         """The SoC (clipped to [0, 1]) and its std read from ``voltage_v``, measured at
-        ``current_a`` and ``temperature_c``, as an OCV: through the file's model where it has
-        one (``TheveninModel.soc_at_terminal_voltage``: the drop the current causes and the
+        ``current_a`` and ``temperature_c``, as an OCV, through the battery's model
+        (``TheveninModel.soc_at_terminal_voltage``: the drop the current causes and the
         temperature's offset taken out, the relaxation no one knows at a start added to the
-        std), the raw voltage on the OCV curve else."""
+        std)."""
         std_v = self.config.ocv_voltage_std_v
         # The estimator's own model where it has one: it carries the learned health (health/).
+        # Else the file's, built here: a start or a reset reads it, the samples never do.
         model = getattr(self.estimator, "model", None)
         if not isinstance(model, TheveninModel):
-            model = self._model
-        if model is None:
-            soc, std = self._ocv.soc_at_with_std(voltage_v, std_v)
-        else:
-            temp = None if math.isnan(temperature_c) else temperature_c
-            soc, std = model.soc_at_terminal_voltage(voltage_v, current_a, std_v, temp)
+            model = self.battery.thevenin_model()
+        temp = None if math.isnan(temperature_c) else temperature_c
+        soc, std = model.soc_at_terminal_voltage(voltage_v, current_a, std_v, temp)
         return min(max(soc, 0.0), 1.0), max(std, MIN_INIT_SOC_STD)
 
     def _initialize(self, s: Sample) -> Event:
