@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from .errors import SocEstimatorError
+from .models.hysteresis import Hysteresis
 from .models.ocv import OcvCurve
 from .models.rc_saft import RcModelParams
 from .models.tables import ParamTable
@@ -324,6 +325,10 @@ class BatteryParams:
     #: alone; this table is what a pack rested for 45 minutes or more reads, for the health
     #: monitor's rest readings (``health/monitor.py``). None: the model's table.
     rest_ocv: OcvTable | None = None
+    #: The OCV's charge/discharge hysteresis (the optional ``hysteresis:`` section), identified
+    #: where a test holds rests after both directions (``soc_identify --hysteresis-test``);
+    #: the tables above are then the discharge branch. None: no hysteresis (no such test).
+    hysteresis: Hysteresis | None = None
 
     def ocv_curve(self) -> OcvCurve:
         """The battery's OCV curve."""
@@ -557,6 +562,20 @@ def _parse_rest_ocv(chk: _Checker, root: Mapping[str, Any]) -> OcvTable | None:
     return OcvTable(soc=soc, voltage_v=volts)
 
 
+def _parse_hysteresis(chk: _Checker, root: Mapping[str, Any]) -> Hysteresis | None:
+    """The optional ``hysteresis:`` section (:attr:`BatteryParams.hysteresis`)."""
+    if root.get("hysteresis") is None:
+        return None
+    key = "hysteresis"
+    hm = chk.mapping(root[key], key)
+    return Hysteresis(
+        gap_v=chk.number(chk.get(hm, "gap_v", key), f"{key}.gap_v", 0.0, 2.0),
+        rate_per_soc=chk.number(
+            chk.get(hm, "rate_per_soc", key), f"{key}.rate_per_soc", 0.1, 1.0e4
+        ),
+    )
+
+
 def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     """Validate a raw YAML tree (already parsed) and build :class:`BatteryParams`."""
     chk = _Checker(source)
@@ -737,6 +756,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         limits=limits,
         ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v, temperature_c=ocv_temps, offset_v=ocv_offsets),
         rest_ocv=_parse_rest_ocv(chk, root),
+        hysteresis=_parse_hysteresis(chk, root),
         rc_model=rc_params,
         thevenin=TheveninParams(
             r0_ohm=r0,
@@ -839,6 +859,8 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     health = {k: v for k, v in asdict(params.health).items() if v != defaults[k]}
     if health:  # only what differs from the defaults
         out["health"] = health
+    if params.hysteresis is not None:
+        out["hysteresis"] = asdict(params.hysteresis)
     cell_defaults = asdict(CellSettings())
     cells = {k: v for k, v in asdict(params.cells).items() if v != cell_defaults[k]}
     if cells:

@@ -162,6 +162,11 @@ class Estimator(ABC):
         self.current_last_a = 0.0
         self.clip_count = 0
         self.last: Estimate | None = None
+        #: The variance (V^2) of an offset the caller took out of the voltages it passes: the
+        #: OCV hysteresis' ``gap_v^2 var(b)`` (``tracking/tracker.py``), 0 for a known one. The
+        #: voltage-reading filters (t2rc_ukf, the hybrid) add it to their measurement noise;
+        #: the others read the voltage with their own noise only.
+        self.voltage_offset_var_v2 = 0.0
         self._init_state(initial_soc, initial_soc_std**2)
 
     # -- configuration -----------------------------------------------------------------------

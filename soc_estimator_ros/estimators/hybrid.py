@@ -341,7 +341,8 @@ class Hybrid(T2rcUkf):
         ocv_v = self.rest_ocv_v(current_a, voltage_v, temp_c)
         c = self.count.soc
         innovation = ocv_v - self.model.ocv.ocv(c)
-        self.count.fuse(innovation, self.model.ocv.slope(c), float(self.tuning["ocv_std_v"]) ** 2)
+        var_v2 = float(self.tuning["ocv_std_v"]) ** 2 + self.voltage_offset_var_v2
+        self.count.fuse(innovation, self.model.ocv.slope(c), var_v2)
 
     def _follow_trusted_filter(self, dt_s: float, temp_c) -> None:
         """The trusted filter's SoC into the count (``guard.py``): inside the identified

@@ -233,7 +233,7 @@ class T2rcUkf(FilterpyState, Estimator):
         if self.t_last_s is None:
             # First sample: sigma points for the update come from the initial x, P.
             self.kf.sigmas_f = self.kf.points_fn.sigma_points(self.kf.x, self.kf.P)
-        var = self._measurement_variance(current_a)
+        var = self._measurement_variance(current_a) + self.voltage_offset_var_v2
         if var != getattr(self, "_r_var", None):  # a new 1x1 R only when the variance changes
             self._r_var = var
             self._r = np.array([[var]])

@@ -233,6 +233,11 @@ class Diagnostics:
                 ("health_pairs_rejected", health.pairs_rejected),
                 ("health_serial_number", health.serial_number or "none"),
             ]
+        if tr.hysteresis is not None:  # the OCV's hysteresis (models/hysteresis.py)
+            values += [
+                ("hysteresis_branch", tr.hysteresis.branch),
+                ("hysteresis_branch_std", math.sqrt(tr.hysteresis.var)),
+            ]
         values += cell_values
         values += extra or []
         return Report(level, message, [(k, _text(v)) for k, v in values])

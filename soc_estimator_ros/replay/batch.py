@@ -284,6 +284,10 @@ def replay_jobs_batched(jobs: Sequence[ReplayJob]) -> dict[int, ReplayResult]:
     out: dict[int, ReplayResult] = {}
     for key, members in groups.items():
         battery = members[0][3]
+        if battery.hysteresis is not None:
+            # The tracker hands the filter the hysteresis' offset variance on every step
+            # (``Estimator.voltage_offset_var_v2``), which the engine's lanes do not carry.
+            continue
         try:
             results = replay_t2rc_batch([(m[1], m[2]) for m in members], battery, key[3])
         except BatchError:

@@ -19,6 +19,9 @@ The state file is a small YAML mapping::
     cells:                 # optional: the cells' deviation filters (cells/filter.py)
       x: [[0.012, 0.0, 0.0004], ...]          # per cell: d_soc, d_capacity, d_r_ohm
       p: [[[1.0e-05, 0.0, 0.0], ...], ...]    # per cell: their 3 x 3 covariance
+    hysteresis:            # optional: the OCV hysteresis' state (models/hysteresis.py)
+      branch: 1.0          # 0 on the discharge branch, 1 on the charge branch
+      var: 0.0
 
 The cells are resumed with the SoC (within ``resume_max_age_s``, for a pack of as many
 cells), their deviations' variance grown by the filter's random walk over the time between
@@ -56,6 +59,7 @@ import yaml
 
 from ..errors import SocEstimatorError
 from ..health import HealthState
+from ..models.hysteresis import HysteresisState
 
 FORMAT_VERSION = 1
 
@@ -102,6 +106,8 @@ class SavedState:
         battery: battery name (``BatteryParams.name``).
         health: what the health monitor learned (None: health learning off).
         cells: the cells' deviations from the pack (None: no cell voltages in the input).
+        hysteresis: where the pack is between its OCV branches (None: a battery without
+            hysteresis).
     """
 
     soc: float
@@ -111,6 +117,7 @@ class SavedState:
     battery: str
     health: HealthState | None = None
     cells: CellsState | None = None
+    hysteresis: HysteresisState | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The YAML mapping written to the file."""
@@ -132,6 +139,11 @@ class SavedState:
             out["cells"] = {
                 "x": [list(row) for row in self.cells.x],
                 "p": [[list(row) for row in cell] for cell in self.cells.p],
+            }
+        if self.hysteresis is not None:
+            out["hysteresis"] = {
+                "branch": float(self.hysteresis.branch),
+                "var": float(self.hysteresis.var),
             }
         return out
 
@@ -267,6 +279,19 @@ def _cells(path: Path, raw: Any) -> CellsState:
     return CellsState.of_arrays(x, p)
 
 
+def _hysteresis(path: Path, raw: Any) -> HysteresisState:
+    if not isinstance(raw, dict):
+        raise StateFileError(path, "hysteresis: expected a mapping")
+    branch, var = _number(path, raw, "branch"), _number(path, raw, "var")
+    if not (0.0 <= branch <= 1.0 and 0.0 <= var <= HysteresisState.UNKNOWN_VAR):
+        raise StateFileError(
+            path,
+            f"hysteresis: branch {branch!r}, var {var!r}: expected a branch in [0, 1] and a "
+            f"variance in [0, {HysteresisState.UNKNOWN_VAR:.4f}]",
+        )
+    return HysteresisState(branch, var)
+
+
 def _text(path: Path, raw: dict[str, Any], key: str) -> str:
     value = raw.get(key)
     if not isinstance(value, str) or not value:
@@ -307,6 +332,7 @@ def load_state(path: Path | str) -> SavedState:
         battery=_text(p, raw, "battery"),
         health=_health(p, raw["health"]) if "health" in raw else None,
         cells=_cells(p, raw["cells"]) if "cells" in raw else None,
+        hysteresis=_hysteresis(p, raw["hysteresis"]) if "hysteresis" in raw else None,
     )
 
 

@@ -56,6 +56,7 @@ from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
 from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
 from ..health import HealthMonitor, HealthState
 from ..models.coulomb import coulomb_efficiency
+from ..models.hysteresis import HysteresisState
 from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
@@ -152,6 +153,9 @@ class TrackerConfig:
         filter_period_s: step the estimator (and the runtime and health monitors) at most
             once per this many seconds, on the interval's counted charge and mean voltage
             (``decimation.py``); 0 = on every sample.
+        initial_branch: for a battery with OCV hysteresis, where the pack starts between its
+            branches (0 discharge, 1 charge: ``models/hysteresis.py``); None = unknown (midway,
+            uncertain). A resumed state carries its own.
     """
 
     estimator: str = DEFAULT_ESTIMATOR
@@ -162,8 +166,12 @@ class TrackerConfig:
     runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
     health: bool = False
     filter_period_s: float = 0.0
+    initial_branch: float | None = None
 
     def __post_init__(self) -> None:
+        b = self.initial_branch
+        if b is not None and not 0.0 <= b <= 1.0:
+            raise ValueError(f"initial_branch = {b!r}: expected None or a fraction in [0, 1]")
         if not (self.filter_period_s >= 0.0 and math.isfinite(self.filter_period_s)):
             raise ValueError(f"filter_period_s = {self.filter_period_s!r}: expected >= 0 s")
         init = self.initial_soc
@@ -239,6 +247,11 @@ class Tracker:
         self._resumed_cells: tuple[CellsState, float] | None = None
         #: The cells after the last accepted sample (None when it carried no cell voltages).
         self.last_cells: CellEstimate | None = None
+        #: Where the pack is between its OCV branches (``models/hysteresis.py``), advanced on
+        #: every accepted sample; None for a battery without hysteresis.
+        self.hysteresis: HysteresisState | None = (
+            None if battery.hysteresis is None else self._start_branch()
+        )
 
     # -- the estimation step ------------------------------------------------------------------
     def process(
@@ -277,6 +290,8 @@ class Tracker:
         temperature_c = self.gate.temperature(s.temperature_c)
         temp = temperature_c if math.isfinite(temperature_c) else None
         t_prev = self._t_sample_s
+        if self.hysteresis is not None and t_prev is not None and self.last_sample is not None:
+            self._advance_hysteresis(self.last_sample.current_a, t_s - t_prev)
         current_a, voltage_v, cell_voltage_v = s.current_a, s.voltage_v, s.cell_voltage_v
         held_a: float | None = None
         if self._decimator is not None:
@@ -286,6 +301,9 @@ class Tracker:
             if interval is not None:
                 current_a, voltage_v = interval.mean_current_a, interval.mean_voltage_v
                 cell_voltage_v, held_a = interval.mean_cell_voltage_v, interval.held_current_a
+        terminal_v = voltage_v  # the charge monitor and the power read the terminal's
+        if self.hysteresis is not None:
+            voltage_v, cell_voltage_v = self._on_discharge_branch(voltage_v, cell_voltage_v)
         try:
             est = self.estimator.step(t_s, current_a, voltage_v, temp, held_current_a=held_a)
         except Exception as exc:  # a numerical failure must not end the run
@@ -307,7 +325,7 @@ class Tracker:
             t_s,
             s.stamp_ns,
             current_a,
-            voltage_v,
+            terminal_v,
             temperature_c,
             est,
             self.estimator,
@@ -384,6 +402,36 @@ class Tracker:
         self.last_estimate = est
         return StepResult(verdict, est, tuple(events), None, cells, filtered=False)
 
+    # -- the OCV's hysteresis (models/hysteresis.py) -------------------------------------------
+    def _start_branch(self) -> HysteresisState:
+        """The hysteresis state a start without a saved one takes (``initial_branch``)."""
+        b = self.config.initial_branch
+        return HysteresisState.unknown() if b is None else HysteresisState(b, 0.0)
+
+    def _advance_hysteresis(self, held_a: float, dt_s: float) -> None:
+        """Move the hysteresis state over ``dt_s`` of the last sample's current, held as the
+        estimators hold it (``estimators/base.py``), at the file's capacity."""
+        hyst, state = self.battery.hysteresis, self.hysteresis
+        assert hyst is not None and state is not None
+        self.hysteresis = hyst.step(
+            state, held_a, dt_s, self.battery.capacity_ah, self.battery.coulomb_efficiency_charge
+        )
+
+    def _on_discharge_branch(
+        self, voltage_v: float, cell_voltage_v: tuple[float, ...]
+    ) -> tuple[float, tuple[float, ...]]:
+        """The pack's (and each cell's) voltage referred to the discharge branch, on which
+        the battery file's OCV and model were identified: the hysteresis' offset taken out
+        (each cell's share of it, for the cells)."""
+        hyst, state = self.battery.hysteresis, self.hysteresis
+        assert hyst is not None and state is not None
+        offset_v = hyst.offset_v(state)
+        self.estimator.voltage_offset_var_v2 = hyst.std_v(state) ** 2
+        if cell_voltage_v:
+            per_cell_v = offset_v / len(cell_voltage_v)
+            cell_voltage_v = tuple(v - per_cell_v for v in cell_voltage_v)
+        return voltage_v - offset_v, cell_voltage_v
+
     def _cells_step(
         self,
         t_s: float,
@@ -410,6 +458,8 @@ class Tracker:
         """Reset the SoC (the runtime monitor's FULL) and return the estimate it leaves."""
         if self.health is not None and self.health.full():
             self._apply_health()
+        if self.hysteresis is not None:  # charged to full: on the charge branch
+            self.hysteresis = HysteresisState(1.0, 0.0)
         self.reset_soc(soc, soc_std)
         last = self.estimator.last
         assert last is not None
@@ -495,6 +545,10 @@ class Tracker:
         temperature's offset taken out, the relaxation no one knows at a start added to the
         std)."""
         std_v = self.config.ocv_voltage_std_v
+        hyst, state = self.battery.hysteresis, self.hysteresis
+        if hyst is not None and state is not None:  # read on the discharge branch
+            voltage_v -= hyst.offset_v(state)
+            std_v = math.hypot(std_v, hyst.std_v(state))
         # The estimator's own model where it has one: it carries the learned health (health/).
         # Else the file's, built here: a start or a reset reads it, the samples never do.
         model = getattr(self.estimator, "model", None)
@@ -518,6 +572,8 @@ class Tracker:
                 if decision.state is not None:
                     st = decision.state
                     self.estimator.reset_soc(st.soc, max(math.sqrt(st.soc_var), 1e-6))
+                    if self.hysteresis is not None and st.hysteresis is not None:
+                        self.hysteresis = st.hysteresis
                     if st.cells is not None:
                         self._resumed_cells = (st.cells, s.stamp_ns / NS_PER_S - st.stamp_s)
                     return Event(Level.INFO, decision.reason)
@@ -599,6 +655,8 @@ class Tracker:
         if self.cells is not None:
             self.cells.reset()
         self._resumed_cells = None
+        if self.hysteresis is not None:
+            self.hysteresis = HysteresisState.unknown()
         if self.health is None:
             return
         self.health.reset(serial_number)
@@ -677,6 +735,7 @@ class Tracker:
             cells=None
             if self.cells is None
             else CellsState.of_arrays(self.cells.filter.x, self.cells.filter.p),
+            hysteresis=self.hysteresis,
         )
 
     def carried_forward(self, now_steady_s: float) -> tuple[float, float, float]:

@@ -102,7 +102,7 @@ def test_state_file_is_plain_yaml(tmp_path: Path) -> None:
     path = tmp_path / "state.yaml"
     save_state(path, STATE)
     raw = yaml.safe_load(path.read_text())
-    optional = ("health", "cells")  # written only when learned or estimated (below)
+    optional = ("health", "cells", "hysteresis")  # written only when learned or estimated
     saved = {k: getattr(STATE, k) for k in STATE.__dataclass_fields__ if k not in optional}
     assert raw == {"format": 1, **saved}
 

@@ -1,0 +1,142 @@
+"""The OCV's charge/discharge hysteresis from a test that rests after both directions.
+
+``soc_identify --hysteresis-test`` (``models/hysteresis.py`` has the model): a test that starts
+full and rests (30 minutes or more) after discharges and after charges, at SoCs the other
+direction also visits: for instance 10 % discharge pulses down to 30 %, small charge pulses
+(a few % each, tracing the move from one branch to the other), 10 % charge pulses back up,
+and small discharge pulses again (``tools/make_bags.py --hysteresis``: ``lfp_hysteresis_test``).
+
+The identified model (its OCV and branches fitted on discharge pulses: the discharge branch)
+is run open loop along the test with the SoC counted from full; what it misses at the end of
+each long rest is the hysteresis' offset plus the model's own error::
+
+    r_k = v_k - v_model_k = gap_v b_k(gamma) + e_k
+
+``b`` follows Plett's state along the measured current from ``b = 1`` at the full start (a
+pack charged to full sits on the charge branch; the first 10 % discharge takes it within
+``exp(-0.1 gamma)`` of the discharge branch whatever it was). For each ``gamma`` of a
+logarithmic grid ``gap_v`` is the least squares of the rests' residuals on ``b``; the grid
+point of least squared error wins. The hysteresis is kept only where the test holds what
+identifies it: rests after at least two charges and two discharges, and a gap at least three
+of its standard errors (else the file has none and the report says why).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..models.hysteresis import Hysteresis, HysteresisState
+from ..params import BatteryParams
+from ..series import BatterySeries
+from .identify import offset_corrected, simulate_open_loop
+from .segment import load_threshold_a, long_rests
+
+#: A rest long enough to read the branch at its end (s): the pulse tests' rests are 1 h.
+MIN_REST_S = 1800.0
+#: Rests after each direction needed to identify the gap (and the rate between them).
+MIN_RESTS_EACH = 2
+#: The rate grid (per unit SoC): a branch change within 0.5 % (1000) to 100 % (1) of SoC.
+RATE_GRID = np.geomspace(1.0, 1000.0, 61)
+#: A gap below this many of its standard errors is not told from the model's error.
+MIN_GAP_SE = 3.0
+
+
+@dataclass(frozen=True)
+class HysteresisFit:
+    """What the test gave: the hysteresis (None: not identified, ``why`` says why) and the
+    rests' residuals behind it."""
+
+    hysteresis: Hysteresis | None
+    why: str
+    rests_after_charge: int
+    rests_after_discharge: int
+    rms_before_v: float = math.nan  # at the rests' ends, without the hysteresis
+    rms_after_v: float = math.nan  # with it
+    gap_se_v: float = math.nan
+
+
+def branch_along(
+    hysteresis: Hysteresis, series: BatterySeries, capacity_ah: float, eta_charge: float
+) -> np.ndarray:
+    """``b`` at every sample from 1 at the first, the current held between samples as the
+    tracker holds it (``Hysteresis.step``, sample by sample)."""
+    state = HysteresisState(1.0, 0.0)
+    out = np.empty(series.t_s.size)
+    out[0] = 1.0
+    amps, times = series.current_a.tolist(), series.t_s.tolist()
+    for k in range(1, len(times)):
+        state = hysteresis.step(
+            state, amps[k - 1], times[k] - times[k - 1], capacity_ah, eta_charge
+        )
+        out[k] = state.branch
+    return out
+
+
+def rest_ends(series: BatterySeries) -> tuple[list[int], list[int]]:
+    """The last samples of the long rests after a charge and after a discharge: the
+    direction of the net charge since the previous long rest."""
+    t, i = series.t_s, series.current_a
+    quiet = np.abs(i) <= load_threshold_a(i)
+    after_charge: list[int] = []
+    after_discharge: list[int] = []
+    prev_end = 0
+    for first, last, _ in long_rests(t, quiet, MIN_REST_S):
+        net_as = float(np.sum(i[prev_end:first] * np.diff(t[prev_end : first + 1])))
+        if first > prev_end and net_as != 0.0:
+            (after_charge if net_as < 0.0 else after_discharge).append(last)
+        prev_end = last
+    return after_charge, after_discharge
+
+
+def fit_hysteresis(battery: BatteryParams, test: BatterySeries, notes: list[str]) -> HysteresisFit:
+    """Identify ``battery``'s hysteresis on ``test`` (module docstring); ``battery`` is the
+    identified model (its own hysteresis, if any, is not used)."""
+    test = offset_corrected(test, notes, "hysteresis test")
+    after_charge, after_discharge = rest_ends(test)
+    n_c, n_d = len(after_charge), len(after_discharge)
+    if n_c < MIN_RESTS_EACH or n_d < MIN_RESTS_EACH:
+        return HysteresisFit(
+            None,
+            f"{n_c} long rests after a charge and {n_d} after a discharge: at least "
+            f"{MIN_RESTS_EACH} of each are needed",
+            n_c,
+            n_d,
+        )
+    q, eta = battery.capacity_ah, battery.coulomb_efficiency_charge
+    v_model, _ = simulate_open_loop(battery, test, 1.0)  # the SoC counted from full
+    ends = np.array(sorted(after_charge + after_discharge))
+    r = test.voltage_v[ends] - v_model[ends]
+    best: tuple[float, float, float] | None = None  # (sse, gap_v, rate)
+    for rate in RATE_GRID:
+        b = branch_along(Hysteresis(1.0, float(rate)), test, q, eta)[ends]
+        bb = float(b @ b)
+        if bb <= 0.0:
+            continue
+        gap = max(float(b @ r) / bb, 0.0)
+        sse = float(np.sum((r - gap * b) ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, gap, float(rate))
+    assert best is not None  # b = 1 at the full start: never all zero
+    sse, gap, rate = best
+    b = branch_along(Hysteresis(1.0, rate), test, q, eta)[ends]
+    dof = max(len(ends) - 2, 1)
+    se = math.sqrt(sse / dof / float(b @ b))
+    rms_before = float(np.sqrt(np.mean(r**2)))
+    rms_after = math.sqrt(sse / len(ends))
+    if not gap > MIN_GAP_SE * se:
+        return HysteresisFit(
+            None,
+            f"gap {1000 * gap:.1f} mV within {MIN_GAP_SE:g} standard errors "
+            f"({1000 * se:.1f} mV) of none",
+            n_c,
+            n_d,
+            rms_before,
+            rms_after,
+            se,
+        )
+    return HysteresisFit(
+        Hysteresis(gap_v=gap, rate_per_soc=rate), "", n_c, n_d, rms_before, rms_after, se
+    )
