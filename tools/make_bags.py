@@ -17,6 +17,15 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
         [--only lfp_aged75] --jobs 1     # battery health: fresh and aged packs' missions
     python tools/make_bags.py --sized --out /work/health_corpus --jobs 1   # 24 V packs
     python tools/make_bags.py --cells --out bags --jobs 2   # 4S LFP packs cell by cell
+    python tools/make_bags.py --hysteresis --out /work/hyst_bags --jobs 1   # hysteretic LFP
+    python tools/make_bags.py --hysteresis --out bags --jobs 1   # its bundled test only
+
+OCV hysteresis (``--hysteresis``; bags/README.md, "Hysteresis"): the LFP pack with PyBaMM's
+one-state OCP hysteresis on its LFP electrode (:data:`HYSTERESIS_PACK`, ``Pack.ocp_hysteresis_v``:
+16 mV per cell between the charge and discharge branches, the branch change's e-folding charge
+2 % of the capacity), the state keeping its branch at rest. A two-direction pulse test
+(``lfp_hysteresis_test``, :func:`hysteresis_test_segments`) and three seeder missions
+(:data:`HYSTERESIS_MISSIONS`: a dock charge, an opportunity charge on the plateau, a cold one).
 
 Series packs cell by cell (``--cells``; bags/README.md, "Series packs cell by cell"): each cell
 of a 4S LFP pack is its own PyBaMM simulation carrying the pack current, with a cell-to-cell
@@ -75,6 +84,7 @@ import argparse
 import itertools
 import math
 import shutil
+import textwrap
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -152,6 +162,14 @@ class Pack:
     #: The cell's voltage window for its initial (full) state: Prada2013 2.0-3.6 V, Chen2020's
     #: own 2.5-4.2 V.
     cell_window_v: tuple[float, float] = (2.0, 3.6)
+    #: OCV hysteresis (``--hysteresis``), LFP only: the gap (V, per cell) between the LFP
+    #: electrode's delithiation (charge) and lithiation (discharge) OCPs, PyBaMM's one-state
+    #: hysteresis on the positive electrode (:func:`hysteresis_parameters`). 0: no hysteresis,
+    #: the model and parameters of every other bag, untouched.
+    ocp_hysteresis_v: float = 0.0
+    #: The charge over which the hysteresis state moves 1 - 1/e of the way from one branch to
+    #: the other, a fraction of ``cell_capacity_ah`` (used only with ``ocp_hysteresis_v``).
+    hysteresis_decay_soc: float = 0.02
 
     @property
     def current_scale(self) -> float:
@@ -234,6 +252,10 @@ class PackSim:
             pv["Lower voltage cut-off [V]"] = 1.5
         else:
             options = {"thermal": "lumped"} if pack.thermal else {}
+            if pack.ocp_hysteresis_v:
+                if pack.chemistry != "lfp":
+                    raise ValueError("the OCV hysteresis is the LFP pack's")
+                options = {**options, "open-circuit potential": HYSTERESIS_OCP_OPTION}
             model = pybamm.lithium_ion.SPMe(options=options)
             pv = pybamm.ParameterValues(pack.parameter_set)
             if pack.thermal:
@@ -251,7 +273,13 @@ class PackSim:
             key = "Initial concentration in negative electrode [mol.m-3]"
             pv[key] = pv[key] * pack.lithium_x / pack.active_material_x
             pv["Lower voltage cut-off [V]"], pv["Upper voltage cut-off [V]"] = pack.cell_window_v
-            pv = pv.set_initial_state(1.0, inplace=False)  # 100 %: OCV at the upper limit
+            if pack.ocp_hysteresis_v:
+                pv.update(hysteresis_parameters(pv, pack), check_already_exists=False)
+                # 100 %: the upper limit on the charge branch, the hysteresis state there (+1),
+                # as a charge to full leaves it (PyBaMM's initial state "charge" direction).
+                pv = pv.set_initial_state(1.0, direction="charge", options=options, inplace=False)
+            else:
+                pv = pv.set_initial_state(1.0, inplace=False)  # 100 %: OCV at the upper limit
             # Solver events only (set after the initial state, which uses the window): a cold
             # pack sags below 2.0 V/cell on a 38 A peak; the pack cut-off is this tool's job.
             pv["Upper voltage cut-off [V]"] = pack.cell_window_v[1] + 0.2
@@ -275,6 +303,10 @@ class PackSim:
         self.discharged_ah = 0.0
         self.last_v = math.nan
         self.last_current_a = 0.0
+        #: The hysteresis state (PyBaMM's, -1 discharge branch .. +1 charge branch) at the end
+        #: of the last segment and at the samples so far; only with ``ocp_hysteresis_v``.
+        self.last_h = 1.0
+        self.h_samples: list[np.ndarray] = []
 
     def segment(
         self, duration_s: float, current_a: float, sample_times: np.ndarray
@@ -307,6 +339,10 @@ class PackSim:
             temp_s = np.interp(rel, t_rel, temp)
         else:
             temp_s = np.full(rel.size, self.temp_c)
+        if self.pack.ocp_hysteresis_v:
+            h = last[HYSTERESIS_STATE].entries
+            self.h_samples.append(np.interp(rel, t_rel, h))
+            self.last_h = float(h[-1])
         self.t_s += duration_s
         self.discharged_ah = float(q[-1])
         self.last_v = float(v[-1])
@@ -327,6 +363,78 @@ def lumped_thermal_parameters(pybamm) -> dict[str, float]:
     values["Cell cooling surface area [m2]"] = 2 * math.pi * 0.013 * 0.065 + 2 * math.pi * 0.013**2
     values["Total heat transfer coefficient [W.m-2.K-1]"] = 10.0
     return values
+
+
+#: OCV hysteresis (``Pack.ocp_hysteresis_v``, ``--hysteresis``): PyBaMM's "one-state hysteresis"
+#: (Axen et al. 2022, J. Energy Storage, doi:10.1016/j.est.2022.103985; the option PyBaMM also calls
+#: "Axen") on the positive (LFP) electrode, the graphite keeping its single OCP. One state h per
+#: electrode, dh/dt = gamma * i_vol / (F c_max eps) * (1 - sign(i_vol) h) / 2: driven by the
+#: reaction current and frozen at zero current, so a rest keeps the branch of the charge or
+#: discharge before it; the OCP is (1 + h)/2 U_delith + (1 - h)/2 U_lith. PyBaMM's "current sigmoid"
+#: option is no use here: its h is 1 - 2 sigmoid(I), 0 at rest (the mid curve, no memory);
+#: "one-state differential capacity hysteresis" (Wycisk) scales gamma by the differential capacity
+#: to a power (its switching factor), near infinite on LFP's plateau: a branch change that crawls
+#: there (with the power 0 it is this model).
+HYSTERESIS_OCP_OPTION = ("single", "one-state hysteresis")
+HYSTERESIS_STATE = "X-averaged positive electrode hysteresis state"
+#: The LFP cell's charge/discharge OCV gap at rest, 16 mV per cell (64 mV for the 4S pack).
+#: LFP's charge and discharge OCVs stay apart however slow the current and however long the
+#: rest (Dreyer et al. 2010, Nature Materials 9, 448: the gap is thermodynamic, from the
+#: many-particle electrode); roughly 10-20 mV per cell is reported for LFP cells, and Plett's
+#: ESC model (Battery Management Systems vol. I, ch. 2) carries it as one state driven by the
+#: current. Prada2013's single OCP (Afshar2017's LFP curve) is taken as the middle: the
+#: lithiation (discharge) branch 8 mV below it, the delithiation (charge) branch 8 mV above.
+LFP_HYSTERESIS_GAP_V = 0.016
+#: The branch change's e-folding charge, 2 % of the cell's nominal capacity (2.06 % of the
+#: reference capacity): 63 % of the way after 2 %, 95 % after 6 % (Plett's ESC model: the
+#: hysteresis decays exponentially with the charge passed, over a few % of SoC).
+LFP_HYSTERESIS_DECAY_SOC = 0.02
+
+
+def positive_electrode_capacity_ah(pv) -> float:
+    """The positive electrode's full lithiation capacity (Ah, one cell): room for 3.29 Ah in
+    Prada2013's LFP."""
+    f = 96485.33212  # C/mol
+    return (
+        pv["Positive electrode active material volume fraction"]
+        * pv["Positive electrode thickness [m]"]
+        * pv["Maximum concentration in positive electrode [mol.m-3]"]
+        * pv["Electrode width [m]"]
+        * pv["Electrode height [m]"]
+        * f
+        / 3600.0
+    )
+
+
+def hysteresis_decay_rate(pv, pack: Pack) -> float:
+    """PyBaMM's hysteresis decay rate gamma (per unit of the electrode's stoichiometry, both
+    directions) for ``pack.hysteresis_decay_soc``: h moves towards the branch of the current
+    as dh/dsto = gamma (1 -/+ h)/2, so its e-folding stoichiometry is 2/gamma, the charge
+    decay_soc x the cell's nominal capacity over the electrode's capacity."""
+    q_p_ah = positive_electrode_capacity_ah(pv)
+    return 2.0 * q_p_ah / (pack.hysteresis_decay_soc * pack.cell_capacity_ah)
+
+
+def hysteresis_parameters(pv, pack: Pack) -> dict:
+    """The parameters of :data:`HYSTERESIS_OCP_OPTION` on the positive electrode: its
+    lithiation and delithiation OCPs (the parameter set's OCP -/+ half the gap) and decay rates;
+    the initial state is set by ``set_initial_state`` (the charge branch at 100 %)."""
+    ocp = pv["Positive electrode OCP [V]"]
+    half = 0.5 * pack.ocp_hysteresis_v
+
+    def lithiation(sto):
+        return ocp(sto) - half
+
+    def delithiation(sto):
+        return ocp(sto) + half
+
+    gamma = hysteresis_decay_rate(pv, pack)
+    return {
+        "Positive electrode lithiation OCP [V]": lithiation,
+        "Positive electrode delithiation OCP [V]": delithiation,
+        "Positive particle lithiation hysteresis decay rate": gamma,
+        "Positive particle delithiation hysteresis decay rate": gamma,
+    }
 
 
 @dataclass
@@ -357,10 +465,12 @@ class Recording:
         return np.concatenate(self.temperature_c)
 
 
-def run_segments(sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, tail_rate_hz=None):
+def run_segments(
+    sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, tail_rate_hz=None, head_s=300.0
+):
     """Simulate ``(duration_s, current_a)`` segments; record samples when ``rec`` is given.
 
-    With ``tail_rate_hz``, a segment's samples after its first 300 s are logged at that
+    With ``tail_rate_hz``, a segment's samples after its first ``head_s`` are logged at that
     slower rate (long rests of lab tests).
     """
     for duration, current in segments:
@@ -370,8 +480,8 @@ def run_segments(sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, ta
             continue
         n = int(round(duration * rate_hz))
         times = t0 + np.arange(n) / rate_hz
-        if tail_rate_hz is not None and duration > 300.0:
-            keep = (times - t0 < 300.0) | (
+        if tail_rate_hz is not None and duration > head_s:
+            keep = (times - t0 < head_s) | (
                 np.isclose(((times - t0) * tail_rate_hz) % 1.0, 0.0, atol=1e-6)
             )
             times = times[keep]
@@ -716,7 +826,7 @@ def check_recording(
     v,
     soc,
     capacity_ah,
-    rest_ends: list[int] | None,
+    rest_ends: list[int] | list[list[int]] | None,
     sample_period_s: float | None = None,
     temp=None,
 ) -> None:
@@ -749,8 +859,11 @@ def check_recording(
     err = np.max(np.abs(expected - soc))
     if err > 2e-4:  # solver tolerance on the charge (rtol 1e-6) over hours, far below 0.1 %
         raise RuntimeError(f"{name}: reference SoC departs from the current integral by {err:.2e}")
-    if rest_ends:
-        rest_v = v[rest_ends]
+    # Rest ends in the order of falling SoC; a hysteretic pack's per branch (lists of lists).
+    for ends in rest_ends if rest_ends and isinstance(rest_ends[0], list) else [rest_ends]:
+        if not ends:
+            continue
+        rest_v = v[ends]
         if not np.all(np.diff(rest_v) < 0):
             raise RuntimeError(f"{name}: rest voltages do not fall with SoC: {rest_v}")
     disordered = rest_order_failures(t, i, v, soc)
@@ -1155,7 +1268,10 @@ def simulate_mission(sc: Scenario, pack: Pack, capacity_ah: float) -> dict:
     temp = rec.temperatures()
     soc_ref = 1.0 - q / capacity_ah
     check_recording(sc.name, t, i, v, soc_ref, capacity_ah, None, 1.0 / rate, temp)
-    return {"t": t, "i": i, "v": v, "soc": soc_ref, "temp_c": sc.ambient_c, "temperature_c": temp}
+    out = {"t": t, "i": i, "v": v, "soc": soc_ref, "temp_c": sc.ambient_c, "temperature_c": temp}
+    if pack.ocp_hysteresis_v:  # the true hysteresis state at the samples (--hysteresis)
+        out["hysteresis_state"] = np.concatenate(sim.h_samples)
+    return out
 
 
 @cache
@@ -1435,6 +1551,32 @@ def bag_readme(meta: dict) -> str:
 """
         + (scenario_readme(meta) if "scenario" in meta else "")
         + (health_readme(meta) if "health" in meta else "")
+        + (hysteresis_readme(meta) if "hysteresis" in meta else "")
+    )
+
+
+def hysteresis_readme(meta: dict) -> str:
+    """A hysteretic pack's README lines (``--hysteresis``): its hysteresis, the test's pairs."""
+    hy = meta["hysteresis"]
+    items = [
+        f'OCV hysteresis (bag.yaml `hysteresis`; ../README.md, "Hysteresis"): PyBaMM\'s '
+        f"one-state hysteresis on the LFP electrode, gap {hy['gap_per_cell_v'] * 1000:g} mV per "
+        f"cell ({hy['gap_pack_v'] * 1000:g} mV for the pack), the branch change's e-folding "
+        f"charge {hy['decay_soc_of_nominal']:.0%} of the nominal capacity (PyBaMM decay rate "
+        f"{hy['decay_rate']}); state +1 the charge branch, -1 the discharge branch."
+    ]
+    if "state_start" in hy:
+        items.append(
+            f"True hysteresis state {hy['state_start']:+.3f} at the start, "
+            f"{hy['state_end']:+.3f} at the end."
+        )
+    for p in hy.get("pairs_1h", []):
+        items.append(
+            f"Rested 1 h at SoC {p['soc']:.3f}: {p['after_charge_v']:.4f} V after a charge, "
+            f"{p['after_discharge_v']:.4f} V after a discharge ({p['gap_v'] * 1000:.1f} mV)."
+        )
+    return "".join(
+        textwrap.fill(x, 95, initial_indent="- ", subsequent_indent="  ") + "\n" for x in items
     )
 
 
@@ -2159,6 +2301,389 @@ def make_cells(only, out_dir: Path, jobs: int) -> int:
     return 0
 
 
+# -- OCV hysteresis (--hysteresis) -----------------------------------------------------------
+#: The hysteretic LFP pack: the bundled LFP pack (SPMe, Prada2013, 4S, 6 Ah) with PyBaMM's
+#: one-state OCP hysteresis on its LFP electrode (:data:`HYSTERESIS_OCP_OPTION`), 16 mV per
+#: cell; a serial of its own (another pack for the node).
+HYSTERESIS_PACK = replace(
+    PACKS["lfp"],
+    serial="ROYPOW-12V6AH-SIM-HYST",
+    ocp_hysteresis_v=LFP_HYSTERESIS_GAP_V,
+    hysteresis_decay_soc=LFP_HYSTERESIS_DECAY_SOC,
+)
+#: The test's reversal steps after each direction: 2, 3 and 5 % of the nominal capacity (10 %
+#: in all, one 0.2 C pulse), each with a 1-h rest: they trace the branch change.
+HYSTERESIS_SMALL_STEPS = (0.02, 0.03, 0.05)
+#: The test's 0.2 C pulses of 10 %: down from full to ~28 %, and up again to ~79 %.
+HYSTERESIS_DOWN_PULSES = 7
+HYSTERESIS_UP_PULSES = 4
+#: The test's samples: HYSTERESIS_HEAD_S at its spec's rate from each segment's start (the
+#: voltage's answer to each step and its first relaxation), the spec's tail rate after it.
+HYSTERESIS_HEAD_S = 300.0
+#: The validation run's long rests (:func:`hysteresis_long_rests`): each rest 6 h, not 1 h.
+HYSTERESIS_LONG_REST_S = 6 * 3600.0
+
+
+def hysteresis_test_segments(pack: Pack) -> tuple[list[tuple[float, float]], list[str]]:
+    """A two-direction pulse test: 10 min rest at full; 0.2 C (10 %) 30-min discharge pulses
+    with 1-h rests down to ~28 % (``down``); a reversal, charges of 2, 3 and 5 % with 1-h rests
+    (``up_small``: the branch change from discharge to charge); 10 % charges with 1-h rests up
+    to ~79 % (``up``); a reversal back, discharges of 2, 3 and 5 % with 1-h rests
+    (``back_small``). Returns the segments and each rest's label (``start`` for the first)."""
+    current = 0.2 * pack.pack_capacity_ah  # 10 % of the nominal capacity in 30 min
+    segs: list[tuple[float, float]] = [(600.0, 0.0)]
+    labels = ["start"]
+
+    def pulse(fraction: float, sign: float, label: str) -> None:
+        segs.extend([(fraction / 0.2 * 3600.0, sign * current), (3600.0, 0.0)])
+        labels.append(label)
+
+    for _ in range(HYSTERESIS_DOWN_PULSES):
+        pulse(0.1, 1.0, "down")
+    for f in HYSTERESIS_SMALL_STEPS:
+        pulse(f, -1.0, "up_small")
+    for _ in range(HYSTERESIS_UP_PULSES):
+        pulse(0.1, -1.0, "up")
+    for f in HYSTERESIS_SMALL_STEPS:
+        pulse(f, 1.0, "back_small")
+    return segs, labels
+
+
+def hysteresis_branches(labels: list[str], ends: list[int]) -> list[list[int]]:
+    """The test's rest ends grouped so that, in each group, the SoC falls: the way down (the
+    discharge branch, the rest at full first), the way up read backwards (the charge branch
+    down to the reversal, then the branch change down to the last rest of the way down), and
+    the way back (the last rest up, then the branch change back)."""
+    down = [e for e, lab in zip(ends, labels, strict=True) if lab in ("start", "down")]
+    up = [e for e, lab in zip(ends, labels, strict=True) if lab in ("up_small", "up")]
+    back = [e for e, lab in zip(ends, labels, strict=True) if lab == "back_small"]
+    return [down, (down[-1:] + up)[::-1], up[-1:] + back]
+
+
+def hysteresis_pairs(rests: list[dict], key: str) -> list[dict]:
+    """Rest voltages after a charge and after a discharge at the same counted SoC (within 0.1 %
+    of the reference capacity): the charge branch's rests against the way down's."""
+    down = [r for r in rests if r["label"] in ("start", "down")]
+    pairs = []
+    for r in rests:
+        if r["label"] not in ("up_small", "up"):
+            continue
+        match = [d for d in down if abs(d["soc"] - r["soc"]) < 1e-3]
+        if match:
+            d = match[0]
+            pairs.append(
+                {
+                    "soc": round(r["soc"], 4),
+                    "after_charge_v": round(r[key], 4),
+                    "after_discharge_v": round(d[key], 4),
+                    "gap_v": round(r[key] - d[key], 4),
+                }
+            )
+    return pairs
+
+
+def hysteresis_meta(pack: Pack) -> dict:
+    """The pack's true hysteresis parameters, for bag.yaml (``hysteresis``)."""
+    import pybamm
+
+    pv = pybamm.ParameterValues(pack.parameter_set)
+    q_p_ah = positive_electrode_capacity_ah(pv)
+    return {
+        "model": "PyBaMM SPMe, 'open-circuit potential': "
+        f"{list(HYSTERESIS_OCP_OPTION)} (one-state hysteresis, Axen2022) on the positive (LFP) "
+        "electrode; the graphite without",
+        "gap_per_cell_v": pack.ocp_hysteresis_v,
+        "gap_pack_v": round(pack.ocp_hysteresis_v * pack.cells, 6),
+        "lithiation_ocp": f"Prada2013 LFP OCP - {pack.ocp_hysteresis_v / 2:g} V (discharge)",
+        "delithiation_ocp": f"Prada2013 LFP OCP + {pack.ocp_hysteresis_v / 2:g} V (charge)",
+        "decay_rate": round(hysteresis_decay_rate(pv, pack), 4),
+        "decay_rate_unit": "per unit of the LFP stoichiometry, both directions",
+        "decay_soc_of_nominal": pack.hysteresis_decay_soc,
+        "positive_electrode_capacity_ah": round(q_p_ah, 4),
+        "state_at_full": 1.0,
+        "state_meaning": "+1 the charge (delithiation) branch, -1 the discharge (lithiation) "
+        "branch; the simulator's full state (as a charge leaves it, before any unrecorded start) "
+        "is +1",
+        "pybamm": pybamm.__version__,
+    }
+
+
+def simulate_hysteresis_test(spec: BagSpec, capacity_ah: float, pack: Pack) -> dict:
+    """:func:`hysteresis_test_segments` on the hysteretic pack, checked per branch: the rest
+    voltages fall with the SoC on each (``check_recording``), and after a charge the rest is
+    above the rest after a discharge at the same SoC by at least half the pack's gap."""
+    sim = PackSim(pack, spec.temp_c)
+    rec = Recording()
+    segs, labels = hysteresis_test_segments(pack)
+    run_segments(sim, segs, rec, spec.rate_hz, spec.tail_rate_hz, HYSTERESIS_HEAD_S)
+    counts = np.cumsum([x.size for x in rec.t_s])
+    ends = [int(counts[0]) - 1] + [int(counts[k]) - 1 for k in range(2, len(segs), 2)]
+    t, i, v, q = rec.arrays()
+    soc_ref = 1.0 - q / capacity_ah
+    h = np.concatenate(sim.h_samples)
+    check_recording(spec.name, t, i, v, soc_ref, capacity_ah, hysteresis_branches(labels, ends))
+    rests = [
+        {
+            "label": lab,
+            "soc": float(soc_ref[e]),
+            "v_1h": float(v[e]),
+            "state": float(h[e]),
+        }
+        for lab, e in zip(labels, ends, strict=True)
+    ]
+    pairs = hysteresis_pairs(rests, "v_1h")
+    gap = pack.ocp_hysteresis_v * pack.cells
+    if len(pairs) != HYSTERESIS_UP_PULSES + 1 or min(p["gap_v"] for p in pairs) < 0.5 * gap:
+        raise RuntimeError(f"{spec.name}: rests after a charge not above those after a discharge")
+    table = [
+        {
+            "label": r["label"],
+            "soc": round(r["soc"], 4),
+            "v": round(r["v_1h"], 4),
+            "state": round(r["state"], 4),
+        }
+        for r in rests
+    ]
+    return {
+        "t": t,
+        "i": i,
+        "v": v,
+        "soc": soc_ref,
+        "temp_c": spec.temp_c,
+        "rests": table,
+        "pairs_1h": pairs,
+    }
+
+
+def hysteresis_long_rests(pack: Pack, capacity_ah: float) -> list[dict]:
+    """Validation (not a bag): the hysteresis test with every rest HYSTERESIS_LONG_REST_S long;
+    the rest voltages after a charge and after a discharge at the same SoC, after 1 h and at
+    the end of the long rest."""
+    sim = PackSim(pack, 25.0)
+    segs, labels = hysteresis_test_segments(pack)
+    rests = []
+    run_segments(sim, segs[:1], None)
+    rests.append({"label": labels[0], "soc": 1.0, "v_1h": sim.last_v, "v_long": sim.last_v})
+    for k in range(1, len(segs), 2):
+        run_segments(sim, [segs[k], (3600.0, 0.0)], None)
+        v_1h = sim.last_v
+        run_segments(sim, [(HYSTERESIS_LONG_REST_S - 3600.0, 0.0)], None)
+        soc = 1.0 - sim.discharged_ah / capacity_ah
+        label = labels[(k + 1) // 2]
+        rests.append({"label": label, "soc": soc, "v_1h": v_1h, "v_long": sim.last_v})
+    return hysteresis_pairs(rests, "v_long")
+
+
+HYSTERESIS_TEST = BagSpec(
+    "lfp_hysteresis_test",
+    "lfp",
+    "hysteresis_test",
+    41,
+    description="Two-direction pulse test on the hysteretic LFP pack (PyBaMM one-state OCP "
+    "hysteresis, 16 mV per cell; bags/README.md, 'Hysteresis'): 10 min rest at full; seven "
+    "0.2 C (1.2 A) 30-min discharge pulses (10 % each) with 1-h rests, 100 % to 28 %; charges "
+    "of 2, 3 and 5 % with 1-h rests (the branch change); four 10 % charges with 1-h rests to "
+    "79 %; discharges of 2, 3 and 5 % with 1-h rests, to 69 %. 1 Hz, 0.05 Hz past each "
+    "segment's first 5 minutes (bags/ stays under 80 MB).",
+    rate_hz=1.0,
+    tail_rate_hz=0.05,
+)
+
+
+def _hysteresis_scenario(seed: int, **values) -> Scenario:
+    """A hand-made corpus-style mission (seeder profile, 2 Hz, the bundled pack's size and
+    resistance), its sensors drawn in the bundled bags' ranges."""
+    sensors = SensorModel.draw(np.random.default_rng([seed, CHEMISTRY_STREAM["lfp"], 0]))
+    base = {
+        "chemistry": "lfp",
+        "seed": seed,
+        "profile": "seeder",
+        "slopes": False,
+        "sample_rate_hz": 2.0,
+        "capacity_x": 1.0,
+        "resistance_x": 1.0,
+        "rests": (),
+        "opportunity_charges": (),
+        "charge_c": 0.5,
+        "dock_soc": None,
+        "sensors": sensors,
+    }
+    return Scenario(**{**base, **values})
+
+
+#: Seeder missions on the hysteretic pack (seeds 3001-3005, odd: validation), each a
+#: corpus-style :class:`Scenario` run by :func:`simulate_mission` (the lumped thermal model).
+#: Fractions of the work place the rests and charges (tuned on the mission as simulated).
+HYSTERESIS_MISSIONS = [
+    (
+        "lfp_hysteresis_mission_1_dock",
+        _hysteresis_scenario(
+            3001,
+            ambient_c=25.0,
+            start_soc=0.6,
+            start_rested=True,
+            work_s=4800.0,
+            rests=((0.25, 900.0), (0.47, 1200.0), (0.98, 1200.0)),
+            dock_soc=0.3,
+        ),
+        "Hysteresis mission (validation, seed 3001) on the hysteretic LFP pack: starts at 60 % "
+        "rested on the discharge branch (driven down at C/5, parked 2 h), seeder work with a "
+        "15-min stop at ~43 %, a dock CC-CV charge to full at 30 % (0.5 C), work again: a "
+        "20-min stop 2 % below full (the branch change under way), the work on to ~45 %, a "
+        "20-min stop. 25 degC, lumped thermal model, 2 Hz.",
+    ),
+    (
+        "lfp_hysteresis_mission_2_opportunity",
+        _hysteresis_scenario(
+            3003,
+            ambient_c=25.0,
+            start_soc=0.7,
+            start_rested=True,
+            work_s=3300.0,
+            rests=((0.3, 900.0), (0.3002, 900.0), (0.75, 900.0), (0.98, 900.0)),
+            opportunity_charges=((0.3001, 900.0),),
+        ),
+        "Hysteresis mission (validation, seed 3003) on the hysteretic LFP pack: starts at 70 % "
+        "rested on the discharge branch, seeder work to ~57 %, a 15-min stop, a 15-min "
+        "opportunity charge at 0.5 C on the plateau (to ~69 %), a 15-min stop on the charge "
+        "branch, the work on with a 15-min stop at ~47 % and one at the end (~35 %). 25 degC, "
+        "lumped thermal model, 2 Hz.",
+    ),
+    (
+        "lfp_hysteresis_mission_3_cold",
+        _hysteresis_scenario(
+            3005,
+            ambient_c=5.0,
+            start_soc=1.0,
+            start_rested=True,
+            work_s=5400.0,
+            rests=((0.04, 1200.0), (0.45, 1200.0), (0.6502, 1200.0)),
+            opportunity_charges=((0.65, 600.0),),
+            dock_soc=0.25,
+            charge_c=0.3,
+        ),
+        "Hysteresis mission (validation, seed 3005) on the hysteretic LFP pack, cold: 5 degC, "
+        "starts full and rested (the charge branch), a 20-min stop 3 % below full, work to "
+        "~66 % and a 20-min stop, work to ~49 %, a 10-min opportunity charge at 0.3 C (to "
+        "~54 %) and a 20-min stop after it, the work on, a dock CC-CV charge to full at 25 % "
+        "(0.3 C), work again to ~94 %. Lumped thermal model, 2 Hz.",
+    ),
+]
+#: Bundled in bags/ (the rest into a directory of your own): bags/ stays under 80 MB.
+HYSTERESIS_BUNDLED = ("lfp_hysteresis_test",)
+
+
+def build_hysteresis_test(capacity_ah: float, out_dir: str) -> dict:
+    """Simulate, check and write the hysteresis test; its rests, the matched pairs (1 h and
+    6 h, :func:`hysteresis_long_rests`) and the pack's hysteresis go into bag.yaml."""
+    spec, pack = HYSTERESIS_TEST, HYSTERESIS_PACK
+    data = simulate_hysteresis_test(spec, capacity_ah, pack)
+    extra = {
+        "hysteresis": {
+            **hysteresis_meta(pack),
+            "rests": data["rests"],
+            "pairs_1h": data["pairs_1h"],
+            "pairs_6h_validation": hysteresis_long_rests(pack, capacity_ah),
+        }
+    }
+    return write_bag(
+        spec,
+        data,
+        capacity_ah,
+        Path(out_dir),
+        pack,
+        start_ns=EPOCH_NS + spec.seed * 86_400 * 1_000_000_000,
+        extra=extra,
+    )
+
+
+def build_hysteresis_mission(
+    name: str, sc: Scenario, description: str, capacity_ah: float, out_dir: str
+) -> dict:
+    """Simulate, check and write one hysteresis mission (``kind: mission``, as the corpus's)."""
+    pack = replace(HYSTERESIS_PACK, thermal=True)  # the corpus's LFP missions' lumped model
+    data = simulate_mission(sc, pack, capacity_ah)
+    h = data["hysteresis_state"]
+    spec = BagSpec(name, "lfp", "mission", sc.seed, sc.ambient_c, description=description)
+    extra = {
+        "split": sc.split,
+        "scenario": sc.values(),
+        "pack": {
+            "capacity_x": sc.capacity_x,
+            "capacity_x_measured": round(capacity_ah / base_capacity_ah("lfp"), 4),
+            "resistance_x": sc.resistance_x,
+            "series_resistance_ohm": 0.0,
+            "thermal": "lumped",
+        },
+        "temperature_max_c": round(float(np.max(data["temperature_c"])), 2),
+        "hysteresis": {
+            **hysteresis_meta(pack),
+            "state_start": round(float(h[0]), 4),
+            "state_end": round(float(h[-1]), 4),
+        },
+    }
+    return write_bag(
+        spec,
+        data,
+        capacity_ah,
+        Path(out_dir),
+        pack,
+        sensors=sc.sensors,
+        rng=sc.stream(3),
+        start_ns=EPOCH_NS + sc.seed * 86_400 * 1_000_000_000,
+        extra=extra,
+    )
+
+
+def _timed(fn, *args) -> tuple[dict | str, float]:
+    start = time.monotonic()
+    try:
+        result: dict | str = fn(*args)
+    except Exception as exc:  # a failed check rejects this one bag
+        result = f"{type(exc).__name__}: {exc}"
+    return result, time.monotonic() - start
+
+
+def make_hysteresis(only, out_dir: Path, jobs: int) -> int:
+    """The hysteresis test and missions (``--only`` some); into bags/ only the bundled ones."""
+    names = [HYSTERESIS_TEST.name] + [m[0] for m in HYSTERESIS_MISSIONS]
+    if out_dir.resolve() == (ROOT / "bags").resolve():
+        names = [n for n in names if n in HYSTERESIS_BUNDLED]
+    names = [n for n in names if not only or n in only]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    capacity_ah = reference_capacity_ah(HYSTERESIS_PACK)
+    print(f"lfp hysteresis: reference capacity {capacity_ah:.4f} Ah (C/20 to cut-off, 25 degC)")
+    failed = 0
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = []
+        if HYSTERESIS_TEST.name in names:
+            futures.append(pool.submit(_timed, build_hysteresis_test, capacity_ah, str(out_dir)))
+        for name, sc, description in HYSTERESIS_MISSIONS:
+            if name in names:
+                args = (name, sc, description, capacity_ah, str(out_dir))
+                futures.append(pool.submit(_timed, build_hysteresis_mission, *args))
+        for fut in futures:
+            m, wall_s = fut.result()
+            if isinstance(m, str):
+                print(f"REJECTED: {m}", flush=True)
+                failed += 1
+                continue
+            print(
+                f"{m['name']}: {m['duration_s'] / 3600:.2f} h, SoC {m['soc_start']:.3f} -> "
+                f"{m['soc_end']:.3f}, {m['samples']} samples, {wall_s:.0f} s",
+                flush=True,
+            )
+            hy = m["hysteresis"]
+            for key in ("pairs_1h", "pairs_6h_validation"):
+                for p in hy.get(key, []):
+                    print(
+                        f"  {key} SoC {p['soc']:.3f}: after charge {p['after_charge_v']:.4f} V, "
+                        f"after discharge {p['after_discharge_v']:.4f} V, "
+                        f"gap {p['gap_v'] * 1000:.1f} mV"
+                    )
+    return 1 if failed else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Simulate the bundled bags with PyBaMM.")
     ap.add_argument("--out", type=Path, default=ROOT / "bags")
@@ -2185,6 +2710,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--cells", action="store_true", help="make the 4S LFP cell-by-cell missions (--cells)"
     )
+    ap.add_argument(
+        "--hysteresis",
+        action="store_true",
+        help="make the hysteretic LFP pack's test and missions (Hysteresis)",
+    )
     ap.add_argument("--count", type=int, default=30, help="corpus: missions per chemistry")
     ap.add_argument(
         "--chemistry", nargs="+", choices=sorted(CHEMISTRY_STREAM), default=["lfp", "sla"]
@@ -2196,6 +2726,8 @@ def main(argv: list[str] | None = None) -> int:
         return make_corpus(args.chemistry, list(seeds), args.out, args.jobs)
     if args.cells:
         return make_cells(args.only, args.out, args.jobs)
+    if args.hysteresis:
+        return make_hysteresis(args.only, args.out, args.jobs)
     if args.aged or args.sized:
         return make_health(args.sized, args.chemistry, args.only, args.out, args.jobs)
     dev = args.dev or args.graphite_diffusivity_x != 1.0
