@@ -1177,9 +1177,10 @@ def draw_scenario(chemistry: str, seed: int) -> Scenario:
     )
 
 
-def scenario_pack(sc: Scenario) -> Pack:
-    """The bundled pack of ``sc.chemistry`` with the mission's spread (and, LFP, warming)."""
-    base = PACKS[sc.chemistry]
+def scenario_pack(sc: Scenario, hysteresis: bool = False) -> Pack:
+    """The bundled pack of ``sc.chemistry`` (with ``hysteresis``, LFP: the hysteretic one,
+    :data:`HYSTERESIS_PACK`) with the mission's spread (and, LFP, warming)."""
+    base = HYSTERESIS_PACK if hysteresis else PACKS[sc.chemistry]
     return replace(
         base,
         capacity_x=sc.capacity_x,
@@ -1312,9 +1313,11 @@ def describe(sc: Scenario) -> str:
     )
 
 
-def build_mission(sc: Scenario, out_dir: str) -> dict:
-    """Simulate, check and write one corpus mission (nothing is written if a check fails)."""
-    pack = scenario_pack(sc)
+def build_mission(sc: Scenario, out_dir: str, hysteresis: bool = False) -> dict:
+    """Simulate, check and write one corpus mission (nothing is written if a check fails);
+    ``hysteresis``: on the hysteretic LFP pack, its true state at the start and end in
+    bag.yaml."""
+    pack = scenario_pack(sc, hysteresis)
     capacity_ah = scenario_capacity_ah(pack)
     ratio = check_capacity(sc, capacity_ah)
     data = simulate_mission(sc, pack, capacity_ah)
@@ -1332,6 +1335,13 @@ def build_mission(sc: Scenario, out_dir: str) -> dict:
         },
         "temperature_max_c": round(float(np.max(data["temperature_c"])), 2),
     }
+    if hysteresis:
+        h = data["hysteresis_state"]
+        extra["hysteresis"] = {
+            **hysteresis_meta(pack),
+            "state_start": round(float(h[0]), 4),
+            "state_end": round(float(h[-1]), 4),
+        }
     return write_bag(
         spec,
         data,
@@ -1599,24 +1609,31 @@ def build(spec: BagSpec, capacity_ah: float, out_dir: str, pack: Pack) -> dict:
     return write_bag(spec, data, capacity_ah, Path(out_dir), pack)
 
 
-def timed_mission(sc: Scenario, out_dir: str) -> tuple[Scenario, dict | str, float]:
+def timed_mission(
+    sc: Scenario, out_dir: str, hysteresis: bool = False
+) -> tuple[Scenario, dict | str, float]:
     """:func:`build_mission`, its failure as a message (the mission is skipped), its wall time."""
     start = time.monotonic()
     try:
-        result: dict | str = build_mission(sc, out_dir)
+        result: dict | str = build_mission(sc, out_dir, hysteresis)
     except Exception as exc:  # any solver or check failure rejects this one mission
         result = f"{type(exc).__name__}: {exc}"
     return sc, result, time.monotonic() - start
 
 
-def make_corpus(chemistries: list[str], seeds: list[int], out_dir: Path, jobs: int) -> int:
+def make_corpus(
+    chemistries: list[str], seeds: list[int], out_dir: Path, jobs: int, hysteresis: bool = False
+) -> int:
     """Every (seed, chemistry) mission not yet in ``out_dir``; rejected ones are reported with
-    their seed and not written. Returns 0 (rejections are results, not errors)."""
+    their seed and not written. Returns 0 (rejections are results, not errors).
+    ``hysteresis``: LFP only, the same draws on the hysteretic pack."""
+    if hysteresis and chemistries != ["lfp"]:
+        raise SystemExit("--corpus --hysteresis: the hysteretic pack is LFP (--chemistry lfp)")
     out_dir.mkdir(parents=True, exist_ok=True)
     todo = [draw_scenario(c, seed) for seed in seeds for c in chemistries]
     todo = [sc for sc in todo if not (out_dir / sc.name / "bag.yaml").exists()]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(timed_mission, sc, str(out_dir)) for sc in todo]
+        futures = [pool.submit(timed_mission, sc, str(out_dir), hysteresis) for sc in todo]
         for fut in futures:
             sc, result, wall_s = fut.result()
             if isinstance(result, str):
@@ -2723,7 +2740,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.corpus:
         seeds = args.seeds or range(CORPUS_FIRST_SEED, CORPUS_FIRST_SEED + args.count)
-        return make_corpus(args.chemistry, list(seeds), args.out, args.jobs)
+        return make_corpus(args.chemistry, list(seeds), args.out, args.jobs, args.hysteresis)
     if args.cells:
         return make_cells(args.only, args.out, args.jobs)
     if args.hysteresis:

@@ -1,10 +1,10 @@
 """The OCV's charge/discharge hysteresis on a hysteretic LFP pack (issue 24, item 4).
 
 The pack is ``tools/make_bags.py --hysteresis``'s: the bundled LFP pack with PyBaMM's own
-hysteresis on its LFP electrode. Its battery files are identified from its own tests, as a
-robot owner would (``soc_identify``): **without** the hysteresis (its discharge pulse test and
-slow discharge: what the tests hold today) and **with** it (the same, plus
-``--hysteresis-test`` on its two-way pulse test). Each mission (``lfp_hysteresis_mission_*``,
+hysteresis on its LFP electrode. Two battery files for it, alike but for the hysteresis
+(:func:`identified`): **without** it (what discharge tests give today) and **with** it, fitted
+on its two-way pulse test (``lfp_hysteresis_test``) as ``soc_identify --hysteresis-test``
+fits it. Each mission (``lfp_hysteresis_mission_*``,
 none of them seen by the identification or by any tuning: the hybrid's tunings are the
 bundled LFP file's) is replayed through the tracker (where the hysteresis lives) from the true
 SoC (std 0.1, as ``do_no_harm.py``), beside coulomb counting from the same start:
@@ -18,25 +18,30 @@ SoC (std 0.1, as ``do_no_harm.py``), beside coulomb counting from the same start
 Error after the 10-minute window, points of SoC; margin = hybrid max - coulomb max (issue
 24's do-no-harm rule: <= 1); coverage = % of samples within +-2 sigma.
 
-    python benchmarks/studies/hysteresis.py [--bags /work/hyst_bags]
+    python benchmarks/studies/hysteresis.py [--bags /work/hyst_bags /work/hyst_corpus] [--jobs 2]
+
+``--bags``: directories of the hysteretic pack's missions (``tools/make_bags.py --hysteresis``,
+and ``--corpus --hysteresis --chemistry lfp``: the scenario corpus's draws on this pack, split
+by seed as the corpus is); the summary counts issue 24's targets per split.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.identification.hysteresis import fit_hysteresis
 from soc_estimator_ros.params import BatteryParams, load_battery_params
 from soc_estimator_ros.recordings import read_recording
 from soc_estimator_ros.replay.run import track_series_runtime
 from soc_estimator_ros.resources import bundled_file
+from soc_estimator_ros.runtime.monitor import RuntimeConfig
 from soc_estimator_ros.series import BatterySeries
 from soc_estimator_ros.tracking import GateConfig, Tracker, TrackerConfig
 
@@ -45,29 +50,41 @@ WINDOW_S = 600.0
 INITIAL_SOC_STD = 0.1
 
 
-def identified(bags: Path) -> tuple[BatteryParams, BatteryParams, str]:
-    """The pack's file without and with the hysteresis, and the fit's report line."""
-    pulse = read_recording(bags / "lfp_hysteresis_pulse_test")
-    slow = read_recording(bags / "lfp_hysteresis_slow_discharge")
-    template = load_battery_params(bundled_file("lfp"))
-    plain, results = identify_tests([pulse], None, template, None, slow, None)
-    two_way = read_recording(_two_way(bags))
-    fit = fit_hysteresis(plain, two_way, results[0].notes)
+def shifted(battery: BatteryParams, offset_v: float) -> BatteryParams:
+    """``battery`` with its OCV tables (``ocv``, ``rest_ocv``) moved by ``offset_v``."""
+
+    def move(table):
+        return replace(table, voltage_v=tuple(v + offset_v for v in table.voltage_v))
+
+    rest = None if battery.rest_ocv is None else move(battery.rest_ocv)
+    return replace(battery, ocv=move(battery.ocv), rest_ocv=rest)
+
+
+def identified(two_way: BatterySeries) -> tuple[BatteryParams, BatteryParams, list[str]]:
+    """The pack's file without and with the hysteresis, and what the fits said.
+
+    The hysteretic pack is the bundled LFP pack's cell with its LFP OCP split into two
+    branches; its discharge tests (pulse, rate, load, slow discharge) would give the bundled
+    file's tables but for the OCV, which they read on the discharge branch. So the file
+    without hysteresis is the bundled one with its OCV moved by what the two-way test's rests
+    say both branches share (the fit's ``c``), the file with it that plus the hysteresis fitted
+    again on it (its ``c`` then near 0)."""
+    bundled = load_battery_params(bundled_file("lfp"))
+    first = fit_hysteresis(bundled, two_way, [])
+    plain = shifted(bundled, first.offset_v)
+    fit = fit_hysteresis(plain, two_way, [])
     if fit.hysteresis is None:
         raise SystemExit(f"hysteresis not identified: {fit.why}")
     h = fit.hysteresis
-    line = (
-        f"identified: gap {1000 * h.gap_v:.1f} mV (se {1000 * fit.gap_se_v:.1f}), rate "
-        f"{h.rate_per_soc:.0f}/SoC; rests' residual {1000 * fit.rms_before_v:.1f} -> "
-        f"{1000 * fit.rms_after_v:.1f} mV RMS"
-    )
-    return plain, replace(plain, hysteresis=h), line
-
-
-def _two_way(bags: Path) -> Path:
-    """The two-way test: beside the missions, else the bundled one."""
-    here = bags / "lfp_hysteresis_test"
-    return here if here.exists() else ROOT / "bags" / "lfp_hysteresis_test"
+    lines = [
+        f"the bundled file's OCV against the two-way test's rests: {1000 * first.offset_v:+.1f}"
+        " mV off both branches alike: moved by it",
+        f"identified on the moved file: gap {1000 * h.gap_v:.1f} mV (se "
+        f"{1000 * fit.gap_se_v:.1f}), rate {h.rate_per_soc:.0f}/SoC, c {1000 * fit.offset_v:+.1f}"
+        f" mV; rests' residual {1000 * fit.rms_before_v:.1f} -> {1000 * fit.rms_after_v:.1f} "
+        "mV RMS",
+    ]
+    return plain, replace(plain, hysteresis=h), lines
 
 
 def run(
@@ -76,6 +93,7 @@ def run(
     """SoC and std through the tracker from the true start (std 0.1)."""
     assert series.soc_ref is not None
     config = TrackerConfig(
+        runtime=RuntimeConfig(predict_period_s=0.0),  # no predictions: not scored here
         estimator=estimator,
         initial_soc=float(np.clip(series.soc_ref[0], 0.0, 1.0)),
         initial_soc_std=INITIAL_SOC_STD,
@@ -98,31 +116,74 @@ def scores(series: BatterySeries, soc: np.ndarray, std: np.ndarray) -> tuple[flo
     )
 
 
+def missions_in(roots: list[Path]) -> list[Path]:
+    """The hysteretic pack's missions under ``roots``: ``kind: mission`` with a ``hysteresis``
+    block in bag.yaml (``--hysteresis``'s and ``--corpus --hysteresis``'s)."""
+    out = []
+    for root in roots:
+        for meta_path in sorted(root.glob("*/bag.yaml")):
+            meta = yaml.safe_load(meta_path.read_text()) or {}
+            if meta.get("kind") == "mission" and "hysteresis" in meta:
+                out.append(meta_path.parent)
+    return out
+
+
+def row(args: tuple[Path, BatteryParams, BatteryParams]) -> tuple[str, str, list[float]]:
+    """One mission: its split and, in the table's order, coulomb MAE and max, then MAE, max,
+    margin and coverage of the three hybrid runs."""
+    path, plain, hyst = args
+    series = read_recording(path)
+    meta = yaml.safe_load((path / "bag.yaml").read_text()) or {}
+    h0 = meta["hysteresis"].get("state_start")  # PyBaMM's h: -1 .. +1
+    branch = None if h0 is None else (float(h0) + 1.0) / 2.0
+    cc = scores(series, *run(plain, series, "coulomb", None))
+    values = [cc[0], cc[1]]
+    for battery, b in ((plain, None), (hyst, None), (hyst, branch)):
+        mae, mx, cov = scores(series, *run(battery, series, "hybrid", b))
+        values += [mae, mx, mx - cc[1], cov]
+    return path.name, str(meta.get("split", "?")), values
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--bags", type=Path, default=Path("/work/hyst_bags"))
+    ap.add_argument("--bags", type=Path, nargs="+", default=[Path("/work/hyst_bags")])
+    ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args()
-    missions = sorted(args.bags.glob("lfp_hysteresis_mission_*"))
+    missions = missions_in(args.bags)
     if not missions:
-        print(f"no lfp_hysteresis_mission_* under {args.bags}", file=sys.stderr)
+        print(f"no missions of the hysteretic pack under {args.bags}", file=sys.stderr)
         return 2
-    plain, hyst, line = identified(args.bags)
-    print(line)
+    two_way = ROOT / "bags" / "lfp_hysteresis_test"
+    plain, hyst, lines = identified(read_recording(two_way))
+    print("\n".join(lines))
     print(
-        "| Mission | coulomb MAE / max | no hysteresis: MAE / max / margin / coverage | "
+        "| Mission | split | coulomb MAE / max | no hysteresis: MAE / max / margin / coverage | "
         "hysteresis, start unknown | hysteresis, start known |"
     )
-    print("|---|---|---|---|---|")
-    for path in missions:
-        series = read_recording(path)
-        meta = yaml.safe_load((path / "bag.yaml").read_text()) or {}
-        branch = meta.get("hysteresis", {}).get("initial_branch")
-        cc = scores(series, *run(plain, series, "coulomb", None))
-        cells = [f"{cc[0]:.2f} / {cc[1]:.2f}"]
-        for battery, b in ((plain, None), (hyst, None), (hyst, branch)):
-            mae, mx, cov = scores(series, *run(battery, series, "hybrid", b))
-            cells.append(f"{mae:.2f} / {mx:.2f} / {mx - cc[1]:+.2f} / {cov:.0f}")
-        print(f"| {path.name} | " + " | ".join(cells) + " |")
+    print("|---|---|---|---|---|---|")
+    jobs = [(path, plain, hyst) for path in missions]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        rows = list(pool.map(row, jobs))
+    for name, split, v in rows:
+        runs = [
+            f"{v[k]:.2f} / {v[k + 1]:.2f} / {v[k + 2]:+.2f} / {v[k + 3]:.0f}" for k in (2, 6, 10)
+        ]
+        print(f"| {name} | {split} | {v[0]:.2f} / {v[1]:.2f} | " + " | ".join(runs) + " |")
+    print()
+    names = ("no hysteresis", "hysteresis, start unknown", "hysteresis, start known")
+    for split in sorted({r[1] for r in rows}):
+        sel = [r[2] for r in rows if r[1] == split]
+        print(f"{split} ({len(sel)} missions):")
+        for j, name in enumerate(names):
+            k = 2 + 4 * j
+            rule = sum(v[k + 2] <= 1.0 for v in sel)
+            cover = sum(90.0 <= v[k + 3] <= 100.0 for v in sel)
+            target = sum(v[k] <= 1.0 and v[k + 1] <= 3.0 for v in sel)
+            mae = sum(v[k] for v in sel) / len(sel)
+            print(
+                f"  {name}: do-no-harm {rule}, coverage 90-100 % {cover}, MAE <= 1 and max <= 3 "
+                f"{target}; mean MAE {mae:.2f} % (coulomb {sum(v[0] for v in sel) / len(sel):.2f})"
+            )
     return 0
 
 

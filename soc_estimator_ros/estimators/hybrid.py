@@ -127,6 +127,17 @@ papers report:
    their model errors as 1.0 and 1.6 points at most): their filters are the ones without it,
    to the bit. ``ocv_soc_resolution_max: 0`` turns it off. Chosen on the LFP tuning half of the
    corpus and the bundled field runs.
+10. **No voltage reading while the OCV's branch is unknown.** With a battery file's OCV
+   hysteresis (``models/hysteresis.py``) the tracker takes ``gap_v b`` out of the voltage and,
+   where ``b`` is uncertain (a start without a saved state), passes its variance
+   (``voltage_offset_var_v2``). That error is persistent, not white: read at 2 Hz for three
+   minutes it took the SoC 7.6 points low at the start of ``lfp_hysteresis_mission_2`` (the
+   white variance added to ``R`` did not stop it). So, by item 9's rule for a persistent
+   error, no voltage is read (load or rest) while the offset's std reads as more than
+   ``ocv_soc_resolution_max`` of SoC at the estimate: the count carries the SoC until the
+   current has taken the pack to a branch (on LFP's plateau, 8 mV of a 77 mV gap: the first
+   3 % of SoC moved). Without a hysteresis the variance is 0 and nothing changes; with
+   ``ocv_soc_resolution_max: 0`` neither item reads anything into it.
 """
 
 from __future__ import annotations
@@ -480,9 +491,21 @@ class Hybrid(T2rcUkf):
         var = float(t["bias_std_v"]) ** 2 + self._flat_r_v2 * w / (2.0 - w)
         return self._flat_innov_v**2 > float(t["ocv_contradiction_sigma"]) ** 2 * var
 
+    def _branch_unknown(self) -> bool:
+        """Item 10: the hysteresis offset's std reads as more than ``ocv_soc_resolution_max``
+        of SoC at the estimate (item 9's rule for a persistent error)."""
+        var_v2 = self.voltage_offset_var_v2
+        if var_v2 <= 0.0:
+            return False
+        limit = float(self.tuning["ocv_soc_resolution_max"])
+        if limit <= 0.0:  # item 9 off: this one too
+            return False
+        slope = self.model.ocv.slope(float(self.kf.x[self.soc_index]))
+        return var_v2 > (limit * slope) ** 2
+
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
-        gated = self._outside_update_currents(current_a)
+        gated = self._outside_update_currents(current_a) or self._branch_unknown()
         if gated or self._flat_rest_reading(current_a):
             # The first sample too: a start under load must not pull a wide prior P0.
             self.at_rest = False

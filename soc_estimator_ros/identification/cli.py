@@ -252,7 +252,8 @@ def hysteresis_report(fit: HysteresisFit | None) -> str:
     return (
         f"hysteresis: gap {1000 * h.gap_v:.1f} mV (se {1000 * fit.gap_se_v:.1f}), rate "
         f"{h.rate_per_soc:.0f} per unit SoC; {rests}; residual at the rests' ends "
-        f"{1000 * fit.rms_before_v:.1f} -> {1000 * fit.rms_after_v:.1f} mV RMS"
+        f"{1000 * fit.rms_before_v:.1f} -> {1000 * fit.rms_after_v:.1f} mV RMS; the model's "
+        f"OCV {1000 * fit.offset_v:+.1f} mV off both branches alike (not applied)"
     )
 
 

@@ -10,15 +10,22 @@ The identified model (its OCV and branches fitted on discharge pulses: the disch
 is run open loop along the test with the SoC counted from full; what it misses at the end of
 each long rest is the hysteresis' offset plus the model's own error::
 
-    r_k = v_k - v_model_k = gap_v b_k(gamma) + e_k
+    r_k = v_k - v_model_k = c + gap_v b_k(gamma) + e_k
+
+``c`` is what the model's OCV misses on both branches alike (its own error at those SoCs, or
+a template's OCV that is not this pack's discharge branch: on the PyBaMM pack the bundled LFP
+file, identified on the same cell without hysteresis, reads the middle of the branches, and
+``c`` comes out near minus half the gap). It is fitted so that the gap is read from the
+difference between the branches alone, and reported, not applied: the file's OCV is what its
+own discharge tests gave.
 
 ``b`` follows Plett's state along the measured current from ``b = 1`` at the full start (a
 pack charged to full sits on the charge branch; the first 10 % discharge takes it within
 ``exp(-0.1 gamma)`` of the discharge branch whatever it was). For each ``gamma`` of a
-logarithmic grid ``gap_v`` is the least squares of the rests' residuals on ``b``; the grid
-point of least squared error wins. The hysteresis is kept only where the test holds what
-identifies it: rests after at least two charges and two discharges, and a gap at least three
-of its standard errors (else the file has none and the report says why).
+logarithmic grid ``c`` and ``gap_v`` are the least squares of the rests' residuals on
+``[1, b]``; the grid point of least squared error wins. The hysteresis is kept only where
+the test holds what identifies it: rests after at least two charges and two discharges, and a
+gap at least three of its standard errors (else the file has none and the report says why).
 """
 
 from __future__ import annotations
@@ -54,8 +61,9 @@ class HysteresisFit:
     rests_after_charge: int
     rests_after_discharge: int
     rms_before_v: float = math.nan  # at the rests' ends, without the hysteresis
-    rms_after_v: float = math.nan  # with it
+    rms_after_v: float = math.nan  # with it (and c)
     gap_se_v: float = math.nan
+    offset_v: float = math.nan  # c: the model's OCV against both branches alike
 
 
 def branch_along(
@@ -109,21 +117,20 @@ def fit_hysteresis(battery: BatteryParams, test: BatterySeries, notes: list[str]
     v_model, _ = simulate_open_loop(battery, test, 1.0)  # the SoC counted from full
     ends = np.array(sorted(after_charge + after_discharge))
     r = test.voltage_v[ends] - v_model[ends]
-    best: tuple[float, float, float] | None = None  # (sse, gap_v, rate)
+    best: tuple[float, float, float, float] | None = None  # (sse, c, gap_v, rate)
     for rate in RATE_GRID:
         b = branch_along(Hysteresis(1.0, float(rate)), test, q, eta)[ends]
-        bb = float(b @ b)
-        if bb <= 0.0:
-            continue
-        gap = max(float(b @ r) / bb, 0.0)
-        sse = float(np.sum((r - gap * b) ** 2))
+        design = np.column_stack([np.ones_like(b), b])
+        (c, gap), *_ = np.linalg.lstsq(design, r, rcond=None)
+        sse = float(np.sum((r - c - gap * b) ** 2))
         if best is None or sse < best[0]:
-            best = (sse, gap, float(rate))
-    assert best is not None  # b = 1 at the full start: never all zero
-    sse, gap, rate = best
+            best = (sse, float(c), float(gap), float(rate))
+    assert best is not None
+    sse, c, gap, rate = best
     b = branch_along(Hysteresis(1.0, rate), test, q, eta)[ends]
-    dof = max(len(ends) - 2, 1)
-    se = math.sqrt(sse / dof / float(b @ b))
+    design = np.column_stack([np.ones_like(b), b])
+    dof = max(len(ends) - 3, 1)  # c, the gap and the rate
+    se = math.sqrt(sse / dof * float(np.linalg.inv(design.T @ design)[1, 1]))
     rms_before = float(np.sqrt(np.mean(r**2)))
     rms_after = math.sqrt(sse / len(ends))
     if not gap > MIN_GAP_SE * se:
@@ -136,7 +143,8 @@ def fit_hysteresis(battery: BatteryParams, test: BatterySeries, notes: list[str]
             rms_before,
             rms_after,
             se,
+            c,
         )
     return HysteresisFit(
-        Hysteresis(gap_v=gap, rate_per_soc=rate), "", n_c, n_d, rms_before, rms_after, se
+        Hysteresis(gap_v=gap, rate_per_soc=rate), "", n_c, n_d, rms_before, rms_after, se, c
     )

@@ -24,9 +24,10 @@ beside the filters and hands every consumer the voltage referred to the discharg
 modelled: it is indistinguishable from the series resistance in a pulse test.
 
 ``b``'s start is often unknown (a node started without its state file): it then starts
-uncertain, with variance ``var_b``, contracted by ``A^2`` on every step (the current drives it
-to a branch whatever it was), so the start's reading of the OCV (``soc_from_ocv``) can add
-``gap_v std(b)`` to its voltage's std.
+uncertain (midway, either branch as likely: variance 1/4), its variance contracted by ``A^2``
+on every step (the current drives it to a branch whatever it was), so the start's reading of
+the OCV (``soc_from_ocv``) adds ``gap_v std(b)`` to its voltage's std and the filters read the
+voltage accordingly (``estimators/hybrid.py``, item 10).
 """
 
 from __future__ import annotations
@@ -101,10 +102,13 @@ class HysteresisState:
     branch: float
     var: float = 0.0
 
-    #: The variance of ``b`` uniform over [0, 1]: a start nothing tells about.
-    UNKNOWN_VAR = 1.0 / 12.0
+    #: The variance of ``b`` when nothing tells the start: a pack sits on one branch or the
+    #: other (a rest keeps the branch of the current before it), each as likely: ``b`` is 0 or
+    #: 1, variance 1/4 (a uniform over [0, 1], 1/12, would take a pack on a branch, the usual
+    #: case, as 1.7 std off the midway guess).
+    UNKNOWN_VAR = 0.25
 
     @classmethod
     def unknown(cls) -> HysteresisState:
-        """A start nothing tells about: midway, with the uniform's variance."""
+        """A start nothing tells about: midway, either branch as likely."""
         return cls(0.5, cls.UNKNOWN_VAR)

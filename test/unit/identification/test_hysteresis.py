@@ -68,6 +68,17 @@ def test_a_known_hysteresis_comes_back() -> None:
     assert fit.hysteresis.gap_v == pytest.approx(TRUE.gap_v, abs=1e-3)
     assert fit.hysteresis.rate_per_soc == pytest.approx(TRUE.rate_per_soc, rel=0.12)
     assert fit.rms_after_v < 0.1 * fit.rms_before_v
+    assert abs(fit.offset_v) < 1e-3  # the model's OCV is the discharge branch here
+
+
+def test_a_model_on_the_middle_of_the_branches_still_gives_the_gap() -> None:
+    """A template's OCV halfway between the branches (the bundled LFP file on the PyBaMM
+    hysteretic pack): the common offset goes to ``c``, the gap stays the branches' gap."""
+    test = synthetic_test()
+    fit = fit_hysteresis(LFP, replace(test, voltage_v=test.voltage_v - 0.04), [])
+    assert fit.hysteresis is not None
+    assert fit.hysteresis.gap_v == pytest.approx(TRUE.gap_v, abs=1e-3)  # as above
+    assert fit.offset_v == pytest.approx(-0.04, abs=1e-3)
 
 
 def test_no_hysteresis_is_told_from_the_model_alone() -> None:

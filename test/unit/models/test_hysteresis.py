@@ -24,7 +24,7 @@ def test_a_discharge_moves_it_toward_the_discharge_branch_and_contracts_its_vari
     after = HYST.step(start, 6.0, 36.0, Q_AH)
     a = math.exp(-0.5)
     assert after.branch == pytest.approx(a * 0.5, abs=1e-15)
-    assert after.var == pytest.approx(a * a / 12.0, abs=1e-15)
+    assert after.var == pytest.approx(a * a / 4.0, abs=1e-15)
 
 
 def test_a_rest_and_a_zero_step_change_nothing() -> None:
@@ -41,7 +41,7 @@ def test_the_charge_counts_at_the_charge_efficiency() -> None:
 def test_the_offset_and_its_std() -> None:
     s = HysteresisState.unknown()
     assert HYST.offset_v(s) == pytest.approx(0.04)
-    assert HYST.std_v(s) == pytest.approx(0.08 / math.sqrt(12.0))
+    assert HYST.std_v(s) == pytest.approx(0.08 / 2.0)
 
 
 @pytest.mark.parametrize(("gap", "rate"), [(-0.01, 10.0), (math.nan, 10.0), (0.05, 0.0)])

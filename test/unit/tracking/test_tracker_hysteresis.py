@@ -78,10 +78,10 @@ def test_the_estimator_reads_the_voltage_on_the_discharge_branch() -> None:
 
 
 def test_the_ocv_start_reads_the_discharge_branch_with_the_state_uncertainty() -> None:
-    t = tracker(replace(LFP, hysteresis=HYST))  # start unknown: midway, std 1/sqrt(12)
+    t = tracker(replace(LFP, hysteresis=HYST))  # start unknown: midway, std 1/2
     model = LFP.thevenin_model()
     soc, std = t.soc_from_ocv(13.30)
-    std_v = math.hypot(t.config.ocv_voltage_std_v, HYST.gap_v / math.sqrt(12.0))
+    std_v = math.hypot(t.config.ocv_voltage_std_v, HYST.gap_v / 2.0)
     want, want_std = model.soc_at_terminal_voltage(13.30 - 0.04, 0.0, std_v, None)
     assert soc == pytest.approx(min(max(want, 0.0), 1.0), abs=1e-12)
     assert std == pytest.approx(want_std, abs=1e-12)
@@ -125,11 +125,11 @@ def test_an_unknown_start_widens_the_filter_reading_until_the_current_settles_it
     t = tracker(replace(LFP, hysteresis=HYST))
     samples = profile()
     run(t, samples[:1])
-    assert t.estimator.voltage_offset_var_v2 == pytest.approx(HYST.gap_v**2 / 12.0, rel=1e-12)
+    assert t.estimator.voltage_offset_var_v2 == pytest.approx(HYST.gap_v**2 / 4.0, rel=1e-12)
     run(t, samples[1:900], k0=1)
-    # 899 steps of 3 A held for 0.1 s: var(b) = exp(-2 gamma dz) / 12, dz the charge stored.
+    # 899 steps of 3 A held for 0.1 s: var(b) = exp(-2 gamma dz) / 4, dz the charge stored.
     dz = 899 * 0.1 * 3.0 * LFP.coulomb_efficiency_charge / (3600.0 * LFP.capacity_ah)
-    want = HYST.gap_v**2 * math.exp(-2.0 * HYST.rate_per_soc * dz) / 12.0
+    want = HYST.gap_v**2 * math.exp(-2.0 * HYST.rate_per_soc * dz) / 4.0
     assert t.estimator.voltage_offset_var_v2 == pytest.approx(want, rel=1e-9)  # float sums
 
 
