@@ -36,14 +36,15 @@ DATA = REPO_ROOT / "test" / "regression" / "data" / "estimates_before.npz"
 N = 2000
 STEP = 10
 #: The bags recorded in DATA (the corpus validation bags, bags/*_validation_*, the aged
-#: pack's missions, bags/lfp_aged*, the cell-by-cell packs and the 4S Li-ion pulse test came
-#: later).
+#: pack's missions, bags/lfp_aged*, the cell-by-cell packs, the 4S Li-ion pulse test and the
+#: hysteretic pack's test came later).
 BAGS = sorted(
     p.parent.name
     for p in (REPO_ROOT / "bags").glob("*/metadata.yaml")
     if "_validation_" not in p.parent.name
     and "_aged" not in p.parent.name
     and "_cells_" not in p.parent.name
+    and "_hysteresis_" not in p.parent.name
     and not p.parent.name.startswith("li_ion4s_")
 )
 
