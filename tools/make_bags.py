@@ -1315,14 +1315,22 @@ def describe(sc: Scenario) -> str:
 
 def build_mission(sc: Scenario, out_dir: str, hysteresis: bool = False) -> dict:
     """Simulate, check and write one corpus mission (nothing is written if a check fails);
-    ``hysteresis``: on the hysteretic LFP pack, its true state at the start and end in
-    bag.yaml."""
+    ``hysteresis``: on the hysteretic LFP pack."""
     pack = scenario_pack(sc, hysteresis)
     capacity_ah = scenario_capacity_ah(pack)
     ratio = check_capacity(sc, capacity_ah)
     data = simulate_mission(sc, pack, capacity_ah)
     spec = BagSpec(sc.name, sc.chemistry, "mission", sc.seed, sc.ambient_c)
     spec = replace(spec, description=describe(sc))
+    return write_mission(sc, spec, pack, data, capacity_ah, ratio, out_dir)
+
+
+def write_mission(
+    sc: Scenario, spec: BagSpec, pack: Pack, data: dict, capacity_ah: float, ratio: float, out_dir
+) -> dict:
+    """Write a simulated mission with its scenario, its pack's spread (``ratio``: the measured
+    capacity over the bundled pack's) and, for the hysteretic pack, the hysteresis and its
+    true state at the start and end in bag.yaml."""
     extra = {
         "split": sc.split,
         "scenario": sc.values(),
@@ -1335,7 +1343,7 @@ def build_mission(sc: Scenario, out_dir: str, hysteresis: bool = False) -> dict:
         },
         "temperature_max_c": round(float(np.max(data["temperature_c"])), 2),
     }
-    if hysteresis:
+    if pack.ocp_hysteresis_v:
         h = data["hysteresis_state"]
         extra["hysteresis"] = {
             **hysteresis_meta(pack),
@@ -2620,36 +2628,9 @@ def build_hysteresis_mission(
     """Simulate, check and write one hysteresis mission (``kind: mission``, as the corpus's)."""
     pack = replace(HYSTERESIS_PACK, thermal=True)  # the corpus's LFP missions' lumped model
     data = simulate_mission(sc, pack, capacity_ah)
-    h = data["hysteresis_state"]
     spec = BagSpec(name, "lfp", "mission", sc.seed, sc.ambient_c, description=description)
-    extra = {
-        "split": sc.split,
-        "scenario": sc.values(),
-        "pack": {
-            "capacity_x": sc.capacity_x,
-            "capacity_x_measured": round(capacity_ah / base_capacity_ah("lfp"), 4),
-            "resistance_x": sc.resistance_x,
-            "series_resistance_ohm": 0.0,
-            "thermal": "lumped",
-        },
-        "temperature_max_c": round(float(np.max(data["temperature_c"])), 2),
-        "hysteresis": {
-            **hysteresis_meta(pack),
-            "state_start": round(float(h[0]), 4),
-            "state_end": round(float(h[-1]), 4),
-        },
-    }
-    return write_bag(
-        spec,
-        data,
-        capacity_ah,
-        Path(out_dir),
-        pack,
-        sensors=sc.sensors,
-        rng=sc.stream(3),
-        start_ns=EPOCH_NS + sc.seed * 86_400 * 1_000_000_000,
-        extra=extra,
-    )
+    ratio = capacity_ah / base_capacity_ah("lfp")
+    return write_mission(sc, spec, pack, data, capacity_ah, ratio, out_dir)
 
 
 def _timed(fn, *args) -> tuple[dict | str, float]:
