@@ -291,7 +291,7 @@ class Tracker:
         temp = temperature_c if math.isfinite(temperature_c) else None
         t_prev = self._t_sample_s
         if self.hysteresis is not None and t_prev is not None and self.last_sample is not None:
-            self._advance_hysteresis(self.last_sample.current_a, t_s - t_prev)
+            self._advance_hysteresis(self.last_sample.current_a, s.current_a, t_s - t_prev)
         current_a, voltage_v, cell_voltage_v = s.current_a, s.voltage_v, s.cell_voltage_v
         held_a: float | None = None
         if self._decimator is not None:
@@ -408,11 +408,14 @@ class Tracker:
         b = self.config.initial_branch
         return HysteresisState.unknown() if b is None else HysteresisState(b, 0.0)
 
-    def _advance_hysteresis(self, held_a: float, dt_s: float) -> None:
-        """Move the hysteresis state over ``dt_s`` of the last sample's current, held as the
-        estimators hold it (``estimators/base.py``), at the file's capacity."""
+    def _advance_hysteresis(self, last_a: float, current_a: float, dt_s: float) -> None:
+        """Move the hysteresis state over ``dt_s`` by the charge the estimators count over it
+        (``estimators/base.py``: the last sample's current held, across a gap beyond
+        ``max_step_s`` the mean of the two ends), at the file's capacity."""
         hyst, state = self.battery.hysteresis, self.hysteresis
         assert hyst is not None and state is not None
+        gap = dt_s > self.estimator.time_policy.max_step_s
+        held_a = 0.5 * (last_a + current_a) if gap else last_a
         self.hysteresis = hyst.step(
             state, held_a, dt_s, self.battery.capacity_ah, self.battery.coulomb_efficiency_charge
         )

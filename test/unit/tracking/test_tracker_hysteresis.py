@@ -138,3 +138,14 @@ def test_a_full_charge_puts_the_pack_on_the_charge_branch() -> None:
     run(t, profile()[:10])
     t._recalibrate(1.0, 0.01)  # what the runtime monitor's FULL calls
     assert t.hysteresis == HysteresisState(1.0, 0.0)
+
+
+def test_across_a_gap_the_state_moves_by_the_charge_the_soc_counts() -> None:
+    t = tracker(replace(LFP, hysteresis=HYST), initial_branch=1.0)
+    run(t, [(0.2, 13.1)])
+    # Ten minutes of silence between an idle 0.2 A and 0.0 A: the estimators count the mean,
+    # 0.1 A, over the gap (estimators/base.py), and so does the hysteresis.
+    t.process(Sample(T0_NS + 600 * NS_PER_S, 0.0, 13.1, 25.0))
+    want = HYST.step(HysteresisState(1.0, 0.0), 0.1, 600.0, LFP.capacity_ah)
+    assert t.hysteresis is not None
+    assert t.hysteresis.branch == pytest.approx(want.branch, abs=1e-15)
