@@ -67,22 +67,20 @@ def identified(two_way: BatterySeries) -> tuple[BatteryParams, BatteryParams, li
     branches; its discharge tests (pulse, rate, load, slow discharge) would give the bundled
     file's tables but for the OCV, which they read on the discharge branch. So the file
     without hysteresis is the bundled one with its OCV moved by what the two-way test's rests
-    say both branches share (the fit's ``c``), the file with it that plus the hysteresis fitted
-    again on it (its ``c`` then near 0)."""
+    say both branches share (the fit's ``c``), the file with it that plus the fitted hysteresis
+    (``c`` takes the common offset out of the fit, so the gap and rate are those the moved
+    file gives: the same to the last bit, measured)."""
     bundled = load_battery_params(bundled_file("lfp"))
-    first = fit_hysteresis(bundled, two_way, [])
-    plain = shifted(bundled, first.offset_v)
-    fit = fit_hysteresis(plain, two_way, [])
+    fit = fit_hysteresis(bundled, two_way, [])
     if fit.hysteresis is None:
         raise SystemExit(f"hysteresis not identified: {fit.why}")
+    plain = shifted(bundled, fit.offset_v)
     h = fit.hysteresis
     lines = [
-        f"the bundled file's OCV against the two-way test's rests: {1000 * first.offset_v:+.1f}"
+        f"the bundled file's OCV against the two-way test's rests: {1000 * fit.offset_v:+.1f}"
         " mV off both branches alike: moved by it",
-        f"identified on the moved file: gap {1000 * h.gap_v:.1f} mV (se "
-        f"{1000 * fit.gap_se_v:.1f}), rate {h.rate_per_soc:.0f}/SoC, c {1000 * fit.offset_v:+.1f}"
-        f" mV; rests' residual {1000 * fit.rms_before_v:.1f} -> {1000 * fit.rms_after_v:.1f} "
-        "mV RMS",
+        f"identified: gap {1000 * h.gap_v:.1f} mV (se {1000 * fit.gap_se_v:.1f}), rate "
+        f"{h.rate_per_soc:.0f}/SoC; rests' residual with c {1000 * fit.rms_after_v:.1f} mV RMS",
     ]
     return plain, replace(plain, hysteresis=h), lines
 

@@ -38,6 +38,7 @@ import numpy as np
 from ..models.hysteresis import Hysteresis, HysteresisState
 from ..params import BatteryParams
 from ..series import BatterySeries
+from .fit import charge_removed_ah
 from .identify import offset_corrected, simulate_open_loop
 from .segment import load_threshold_a, long_rests
 
@@ -69,8 +70,8 @@ class HysteresisFit:
 def branch_along(
     hysteresis: Hysteresis, series: BatterySeries, capacity_ah: float, eta_charge: float
 ) -> np.ndarray:
-    """``b`` at every sample from 1 at the first, the current held between samples as the
-    tracker holds it (``Hysteresis.step``, sample by sample)."""
+    """``b`` at every sample from 1 at the first (``Hysteresis.step``, sample by sample), the
+    current held between samples as :func:`~.identify.simulate_open_loop` counts the SoC."""
     state = HysteresisState(1.0, 0.0)
     out = np.empty(series.t_s.size)
     out[0] = 1.0
@@ -85,16 +86,17 @@ def branch_along(
 
 def rest_ends(series: BatterySeries) -> tuple[list[int], list[int]]:
     """The last samples of the long rests after a charge and after a discharge: the
-    direction of the net charge since the previous long rest."""
+    direction of the net charge since the previous long rest (:func:`~.fit.charge_removed_ah`)."""
     t, i = series.t_s, series.current_a
+    removed_ah = charge_removed_ah(series)
     quiet = np.abs(i) <= load_threshold_a(i)
     after_charge: list[int] = []
     after_discharge: list[int] = []
     prev_end = 0
     for first, last, _ in long_rests(t, quiet, MIN_REST_S):
-        net_as = float(np.sum(i[prev_end:first] * np.diff(t[prev_end : first + 1])))
-        if first > prev_end and net_as != 0.0:
-            (after_charge if net_as < 0.0 else after_discharge).append(last)
+        net_ah = float(removed_ah[first] - removed_ah[prev_end])
+        if first > prev_end and net_ah != 0.0:
+            (after_charge if net_ah < 0.0 else after_discharge).append(last)
         prev_end = last
     return after_charge, after_discharge
 
@@ -117,18 +119,16 @@ def fit_hysteresis(battery: BatteryParams, test: BatterySeries, notes: list[str]
     v_model, _ = simulate_open_loop(battery, test, 1.0)  # the SoC counted from full
     ends = np.array(sorted(after_charge + after_discharge))
     r = test.voltage_v[ends] - v_model[ends]
-    best: tuple[float, float, float, float] | None = None  # (sse, c, gap_v, rate)
+    best: tuple[float, float, float, float, np.ndarray] | None = None  # sse, c, gap, rate, X
     for rate in RATE_GRID:
         b = branch_along(Hysteresis(1.0, float(rate)), test, q, eta)[ends]
         design = np.column_stack([np.ones_like(b), b])
         (c, gap), *_ = np.linalg.lstsq(design, r, rcond=None)
         sse = float(np.sum((r - c - gap * b) ** 2))
         if best is None or sse < best[0]:
-            best = (sse, float(c), float(gap), float(rate))
+            best = (sse, float(c), float(gap), float(rate), design)
     assert best is not None
-    sse, c, gap, rate = best
-    b = branch_along(Hysteresis(1.0, rate), test, q, eta)[ends]
-    design = np.column_stack([np.ones_like(b), b])
+    sse, c, gap, rate, design = best
     dof = max(len(ends) - 3, 1)  # c, the gap and the rate
     se = math.sqrt(sse / dof * float(np.linalg.inv(design.T @ design)[1, 1]))
     rms_before = float(np.sqrt(np.mean(r**2)))

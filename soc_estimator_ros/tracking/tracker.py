@@ -302,8 +302,11 @@ class Tracker:
                 current_a, voltage_v = interval.mean_current_a, interval.mean_voltage_v
                 cell_voltage_v, held_a = interval.mean_cell_voltage_v, interval.held_current_a
         terminal_v = voltage_v  # the charge monitor and the power read the terminal's
-        if self.hysteresis is not None:
+        if self.battery.hysteresis is not None and self.hysteresis is not None:
             voltage_v, cell_voltage_v = self._on_discharge_branch(voltage_v, cell_voltage_v)
+            self.estimator.voltage_offset_var_v2 = (
+                self.battery.hysteresis.std_v(self.hysteresis) ** 2
+            )
         try:
             est = self.estimator.step(t_s, current_a, voltage_v, temp, held_current_a=held_a)
         except Exception as exc:  # a numerical failure must not end the run
@@ -429,7 +432,6 @@ class Tracker:
         hyst, state = self.battery.hysteresis, self.hysteresis
         assert hyst is not None and state is not None
         offset_v = hyst.offset_v(state)
-        self.estimator.voltage_offset_var_v2 = hyst.std_v(state) ** 2
         if cell_voltage_v:
             per_cell_v = offset_v / len(cell_voltage_v)
             cell_voltage_v = tuple(v - per_cell_v for v in cell_voltage_v)
@@ -550,7 +552,7 @@ class Tracker:
         std_v = self.config.ocv_voltage_std_v
         hyst, state = self.battery.hysteresis, self.hysteresis
         if hyst is not None and state is not None:  # read on the discharge branch
-            voltage_v -= hyst.offset_v(state)
+            voltage_v, _ = self._on_discharge_branch(voltage_v, ())
             std_v = math.hypot(std_v, hyst.std_v(state))
         # The estimator's own model where it has one: it carries the learned health (health/).
         # Else the file's, built here: a start or a reset reads it, the samples never do.
