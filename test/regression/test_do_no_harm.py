@@ -84,3 +84,30 @@ def test_the_summary_counts_each_target_per_estimator_and_split() -> None:
         "hybrid on validation (2): rule met on 1, coverage in 90-100 % on 1, MAE <= 1 and max "
         "<= 3 on 1; mean MAE 1.000 % (coulomb 0.500 %)",
     ]
+
+
+def test_the_exact_posterior_moves_a_right_start_off_a_plateau_edge() -> None:
+    """benchmarks/studies/plateau_posterior.py. On a curve flat (0.1 mV) from 0.4 to 0.8 and
+    steep (2 V per unit of SoC) elsewhere, a right start at 0.75 declared with std 0.1 and an
+    exact reading of 2 mV std: the reading says "on the flat", the posterior is the prior cut
+    to it. Cut at exactly [0.4, 0.8] its mean would be 5.08 points low (scipy's truncnorm);
+    the monotone cubic's shoulders widen the flat a little past 0.8, so it moves less (measured
+    4.49): bounds 3 to 5.08 points low. On the steep part the reading pins the truth (bound 0.1
+    point). On the LFP file at 0.646 (std 0.1, its bias_std_v 20.4 mV) the mean moves 4.0
+    points (bound 3); declared with std 0.015 it moves 0.03 (bound 0.5)."""
+    from scipy.stats import truncnorm
+
+    from soc_estimator_ros.models.ocv import OcvCurve
+    from soc_estimator_ros.params import load_battery_params
+
+    study = load_benchmark("studies/plateau_posterior")
+    curve = OcvCurve([0.0, 0.4, 0.8, 1.0], [12.0, 12.8, 12.8001, 13.2001])
+    cut = float(truncnorm.mean(-3.5, 0.5, loc=0.75, scale=0.1)) - 0.75  # [0.4, 0.8] in std
+    shift = study.posterior(curve, 0.75, 0.1, 0.002).shift
+    assert cut - 1e-9 <= shift < -0.03, (shift, cut)
+    assert abs(study.posterior(curve, 0.9, 0.1, 0.002).shift) < 0.001
+    lfp = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+    sigma_v = study.model_error_v(lfp)
+    ocv = lfp.thevenin_model().ocv
+    assert study.posterior(ocv, 0.646, 0.1, sigma_v).shift < -0.03
+    assert abs(study.posterior(ocv, 0.646, 0.015, sigma_v).shift) < 0.005
