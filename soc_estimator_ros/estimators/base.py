@@ -120,6 +120,13 @@ class TimePolicy:
     max_step_s: float = 5.0
     gap_current_std_a: float = 1.0
 
+    def held_current_a(self, last_a: float, current_a: float, dt_s: float) -> float:
+        """The current counted over a step of ``dt_s`` from a sample of ``last_a`` to one of
+        ``current_a`` (A): the last sample's, held; across a gap (``dt_s > max_step_s``) the
+        mean of the two ends (module docstring). The tracker moves the OCV's hysteresis by
+        the same charge."""
+        return 0.5 * (last_a + current_a) if dt_s > self.max_step_s else last_a
+
 
 class Estimator(ABC):
     """Base class: time handling, SoC clipping, handover; subclasses do the filtering.
@@ -238,20 +245,18 @@ class Estimator(ABC):
             dt = t_s - self.t_last_s
             if not dt > 0.0:
                 return self._estimate(t_s, StepStatus.REJECTED_DT, math.nan, math.nan, math.nan)
+            held = (
+                self.time_policy.held_current_a(self.current_last_a, current_a, dt)
+                if held_current_a is None
+                else held_current_a
+            )
+            self._predict(dt, held, current_a, temperature_c)
             if dt > self.time_policy.max_step_s:
                 status = StepStatus.GAP
-                i_mean = (
-                    0.5 * (self.current_last_a + current_a)
-                    if held_current_a is None
-                    else held_current_a
-                )
-                self._predict(dt, i_mean, current_a, temperature_c)
                 q = self.time_policy.gap_current_std_a * dt / (SECONDS_PER_HOUR * self.capacity_ah)
                 self._inflate_soc_variance(q * q)
             else:
                 status = StepStatus.OK
-                held = self.current_last_a if held_current_a is None else held_current_a
-                self._predict(dt, held, current_a, temperature_c)
             self.p = condition_covariance(self.p)
         v_pred, innov, nis = self._update(current_a, voltage_v, temperature_c)
         self._clip_soc()

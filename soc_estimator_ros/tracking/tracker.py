@@ -413,12 +413,10 @@ class Tracker:
 
     def _advance_hysteresis(self, last_a: float, current_a: float, dt_s: float) -> None:
         """Move the hysteresis state over ``dt_s`` by the charge the estimators count over it
-        (``estimators/base.py``: the last sample's current held, across a gap beyond
-        ``max_step_s`` the mean of the two ends), at the file's capacity."""
+        (``TimePolicy.held_current_a``), at the file's capacity."""
         hyst, state = self.battery.hysteresis, self.hysteresis
         assert hyst is not None and state is not None
-        gap = dt_s > self.estimator.time_policy.max_step_s
-        held_a = 0.5 * (last_a + current_a) if gap else last_a
+        held_a = self.estimator.time_policy.held_current_a(last_a, current_a, dt_s)
         self.hysteresis = hyst.step(
             state, held_a, dt_s, self.battery.capacity_ah, self.battery.coulomb_efficiency_charge
         )
