@@ -45,6 +45,10 @@ from soc_estimator_ros.runtime.monitor import RuntimeConfig
 from soc_estimator_ros.series import BatterySeries
 from soc_estimator_ros.tracking import GateConfig, Tracker, TrackerConfig
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from do_no_harm import summary  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[2]
 WINDOW_S = 600.0
 INITIAL_SOC_STD = 0.1
@@ -168,20 +172,23 @@ def main() -> int:
         ]
         print(f"| {name} | {split} | {v[0]:.2f} / {v[1]:.2f} | " + " | ".join(runs) + " |")
     print()
+    # Issue 24's targets counted as do_no_harm.py counts them, one "estimator" per run.
     names = ("no hysteresis", "hysteresis, start unknown", "hysteresis, start known")
-    for split in sorted({r[1] for r in rows}):
-        sel = [r[2] for r in rows if r[1] == split]
-        print(f"{split} ({len(sel)} missions):")
-        for j, name in enumerate(names):
-            k = 2 + 4 * j
-            rule = sum(v[k + 2] <= 1.0 for v in sel)
-            cover = sum(90.0 <= v[k + 3] <= 100.0 for v in sel)
-            target = sum(v[k] <= 1.0 and v[k + 1] <= 3.0 for v in sel)
-            mae = sum(v[k] for v in sel) / len(sel)
-            print(
-                f"  {name}: do-no-harm {rule}, coverage 90-100 % {cover}, MAE <= 1 and max <= 3 "
-                f"{target}; mean MAE {mae:.2f} % (coulomb {sum(v[0] for v in sel) / len(sel):.2f})"
-            )
+    scored = [
+        {
+            "estimator": name,
+            "split": split,
+            "mae": v[k],
+            "max": v[k + 1],
+            "margin": v[k + 2],
+            "coverage": v[k + 3],
+            "cc_mae": v[0],
+        }
+        for _, split, v in rows
+        for name, k in zip(names, (2, 6, 10), strict=True)
+    ]
+    for line in summary(scored):
+        print(line)
     return 0
 
 

@@ -405,15 +405,15 @@ def test_cli_on_csv_with_sign_flag(tmp_path: Path, capsys) -> None:
 
 # -- on the physics-simulated bags ------------------------------------------------------------
 BAGS = ROOT / "bags"
+#: The checkout's bundled file of each chemistry the bags cover (the template, or the result).
+BUNDLED = {"sla": ROOT / "config" / "sla_12v5ah.yaml", "lfp": ROOT / "config" / "lfp_12v6ah.yaml"}
 
 
 @cache
 def bag_identification(chem: str):
     pulse = BAGS / f"{chem}_pulse_test"
     slow = BAGS / f"{chem}_slow_discharge"
-    template = load_battery_params(
-        ROOT / "config" / f"{'sla_12v5ah' if chem == 'sla' else 'lfp_12v6ah'}.yaml"
-    )
+    template = load_battery_params(BUNDLED[chem])
     # As soc_identify reads them: a robot owner's pulse test has no reference SoC.
     return identify(
         read_battery_bag(pulse, reference_topic=None),
@@ -443,9 +443,7 @@ def bundled_identification(chem: str):
     is one, LFP): the bundled file, which test_bundled_files_are_the_identified_ones holds to be
     what its soc_identify command writes from those bags (the same voltage along every input
     test). Read rather than identified again here: the identification costs 5-7 s a file."""
-    return load_battery_params(
-        ROOT / "config" / f"{'sla_12v5ah' if chem == 'sla' else 'lfp_12v6ah'}.yaml"
-    )
+    return load_battery_params(BUNDLED[chem])
 
 
 @pytest.mark.parametrize(
