@@ -52,7 +52,7 @@ from ..estimators.base import Estimator
 from ..messages import estimate_state
 from ..params import BatteryParams, load_battery_params
 from ..resources import default_battery_file
-from ..runtime import LevelThresholds, RuntimeConfig, RuntimeReport
+from ..runtime import LevelThresholds, RuntimeConfig
 from ..scaling import scale_to_pack
 from ..tracking import (
     Event,
@@ -145,7 +145,6 @@ class SocEstimatorNode(Node):
         self._pending_estimate = False
         self._saved_revision = 0
         self._pending_switch: Estimator | None = None
-        self._pending_runtime: RuntimeReport | None = None
         self._last_header: Header | None = None
         self._soc_msg = BatteryState()  # filled anew for every output (battery_state_msg)
         self._read_output_parameters()
@@ -231,6 +230,7 @@ class SocEstimatorNode(Node):
             idle_current_a=p("idle_current_a"),
             charging_current_a=p("charging_current_a"),
             levels=levels,
+            deferred=True,  # computed after the SoC is published (_publish_locked)
         )
         config = TrackerConfig(
             estimator=name,
@@ -374,8 +374,6 @@ class SocEstimatorNode(Node):
                 self._last_location, self._last_serial = location, serial_number
                 self._pending_publish = True
                 self._pending_estimate = self._pending_estimate or result.filtered
-                if result.runtime is not None:
-                    self._pending_runtime = result.runtime
                 if self._publish_rate_hz <= 0.0:
                     self._publish_locked()
         return result.verdict
@@ -427,26 +425,26 @@ class SocEstimatorNode(Node):
             soh=soh,
         )
         self._soc_pub.publish(battery_state_msg(fields, self._last_header, self._soc_msg))
-        if not self._pending_estimate:
-            return  # between filter steps: the estimate vector is the last step's
-        self._pending_estimate = False
-        # The vectors are built and published only for a listener: a publish costs rclpy and
-        # the DDS CPU with no subscriber too, about half of one with a subscriber
-        # (docs/benchmarks.md).
-        if self._est_pub.get_subscription_count():
-            health = self.tracker.health
-            self._est_pub.publish(
-                estimate_msg(
-                    last.stamp_ns / NS_PER_S,
-                    est,
-                    None if health is None else health.fields(),
-                    self.tracker.last_cells,
+        if self._pending_estimate:
+            self._pending_estimate = False
+            # The vectors are built and published only for a listener: a publish costs rclpy
+            # and the DDS CPU with no subscriber too, about half of one with a subscriber
+            # (docs/benchmarks.md).
+            if self._est_pub.get_subscription_count():
+                health = self.tracker.health
+                self._est_pub.publish(
+                    estimate_msg(
+                        last.stamp_ns / NS_PER_S,
+                        est,
+                        None if health is None else health.fields(),
+                        self.tracker.last_cells,
+                    )
                 )
-            )
-        if self._pending_runtime is not None:
-            if self._runtime_pub.get_subscription_count():
-                self._runtime_pub.publish(runtime_msg(self._pending_runtime))
-            self._pending_runtime = None
+        # A prediction due on this sample is computed only now, its SoC out (RuntimeConfig's
+        # ``deferred``): the same numbers, without the 0.5 ms in that message's latency.
+        report = self.tracker.runtime.flush()
+        if report is not None and self._runtime_pub.get_subscription_count():
+            self._runtime_pub.publish(runtime_msg(report))
 
     def _learned_health(self) -> tuple[float | None, float | None]:
         """``estimate_state``'s capacity and SOH: those the estimator computes with (the

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from .charging import ChargeMonitor, ChargePhase, ChargeSpec
 from .levels import BatteryLevel, LevelChange, LevelMonitor, LevelThresholds
-from .monitor import Notice, RuntimeConfig, RuntimeMonitor, RuntimeReport
+from .monitor import Notice, PredictionInput, RuntimeConfig, RuntimeMonitor, RuntimeReport
 from .prediction import (
     LoadForecast,
     PackState,
@@ -31,6 +31,7 @@ __all__ = [
     "Notice",
     "PackState",
     "PowerWindow",
+    "PredictionInput",
     "RuntimeConfig",
     "RuntimeMonitor",
     "RuntimeReport",

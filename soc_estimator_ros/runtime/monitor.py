@@ -9,7 +9,12 @@ estimate (so the node, ``soc_replay`` and ``soc_replay --live`` see the same), a
   SoC to 1;
 * the low-battery level (``levels.py``);
 * every ``predict_period_s`` of sample time (0: never; ``soc_replay`` without CSV or plot),
-  a :class:`RuntimeReport`: time to empty and its std, time to full, state of power.
+  a :class:`RuntimeReport`: time to empty and its std, time to full, state of power. Its
+  inputs are taken on the sample it is due (:class:`PredictionInput`); it is computed there,
+  or, ``deferred`` (the node), by :meth:`RuntimeMonitor.flush` once that sample's SoC is
+  published: the same numbers, and the one message a second that carries a prediction is not
+  the one whose SoC waits 0.5 ms for it (docs/benchmarks.md, "Where the time goes in the
+  node").
 
 It never changes the estimate except on FULL.
 """
@@ -53,6 +58,7 @@ class RuntimeConfig:
         idle_current_a: |current| at or below which the pack is idle (A).
         charging_current_a: charge current above which it is charging (A).
         levels: level overrides (None entries: the battery file's, else the rule).
+        deferred: a due prediction waits for :meth:`RuntimeMonitor.flush` (module docstring).
     """
 
     window_s: float = 300.0
@@ -61,6 +67,28 @@ class RuntimeConfig:
     idle_current_a: float = IDLE_CURRENT_A
     charging_current_a: float = CHARGING_CURRENT_A
     levels: LevelSettings = field(default_factory=LevelSettings)
+    deferred: bool = False
+
+
+@dataclass(frozen=True)
+class PredictionInput:
+    """What a prediction reads, taken on the sample it is due (floats and frozen values: the
+    estimator and the monitor may move on before it is computed)."""
+
+    stamp_ns: int
+    t_s: float
+    state: PackState
+    forecast: LoadForecast
+    min_power_w: float
+    level: BatteryLevel
+    phase: ChargePhase
+    full: bool
+    charging: bool
+    charge_current_a: float
+    charge_voltage_v: float
+    taper_current_a: float
+    in_cv: bool
+    hold_left_s: float
 
 
 @dataclass(frozen=True)
@@ -131,6 +159,7 @@ class RuntimeMonitor:
         self.mission_power_w = self.config.mission_power_w
         self.report: RuntimeReport | None = None
         self._next_predict_s: float | None = None
+        self._due: PredictionInput | None = None
         self._branch_v = np.zeros(self.model.n_rc)
         self._surface_z = self.model.surface_rest()
         self._last: tuple[float, float, float, float | None] | None = None  # t, I, SoC, T
@@ -190,7 +219,7 @@ class RuntimeMonitor:
         """One accepted sample and its estimate (core sign; ``t_s`` the tracker's time).
 
         Returns the estimate (a new one after a FULL recalibration), what to log, and a new
-        report when one was due.
+        report when one was due (``deferred``: None, the report comes from :meth:`flush`).
         """
         notices: list[Notice] = []
         temp = temperature_c if math.isfinite(temperature_c) else None
@@ -228,9 +257,19 @@ class RuntimeMonitor:
         report = None
         if self.predicting and (self._next_predict_s is None or t_s >= self._next_predict_s):
             self._next_predict_s = t_s + self.config.predict_period_s
-            report = self.predict(stamp_ns, t_s, est, estimator, voltage_v, temp)
-            self.report = report
+            self._due = self.prediction_input(stamp_ns, t_s, est, estimator, voltage_v, temp)
+            if not self.config.deferred:
+                report = self.flush()
         return est, notices, report
+
+    def flush(self) -> RuntimeReport | None:
+        """The prediction due and not yet computed, from the inputs taken on its sample (kept
+        as :attr:`report`); None when none is due."""
+        due, self._due = self._due, None
+        if due is None:
+            return None
+        self.report = self.report_from(due)
+        return self.report
 
     def _estimator_branches(self, est: Estimate) -> np.ndarray | None:
         """The estimator's RC branch voltages ``v1_v..vn_v`` by name, None without them."""
@@ -320,29 +359,61 @@ class RuntimeMonitor:
         temperature_c: float | None,
     ) -> RuntimeReport:
         """A :class:`RuntimeReport` for the present state."""
+        return self.report_from(
+            self.prediction_input(stamp_ns, t_s, est, estimator, voltage_v, temperature_c)
+        )
+
+    def prediction_input(
+        self,
+        stamp_ns: int,
+        t_s: float,
+        est: Estimate,
+        estimator: Any,
+        voltage_v: float,
+        temperature_c: float | None,
+    ) -> PredictionInput:
+        """What a prediction for the present state reads (:class:`PredictionInput`)."""
         state = self.pack_state(est, estimator, temperature_c)
+        charge = self.charge
+        return PredictionInput(
+            stamp_ns=stamp_ns,
+            t_s=t_s,
+            state=state,
+            forecast=self.forecast(),
+            min_power_w=charge.spec.idle_current_a * self.model.ocv.ocv(state.soc),
+            level=self.level,
+            phase=charge.phase,
+            full=charge.full,
+            charging=charge.charging,
+            charge_current_a=max(-charge.current_lp_a, charge.spec.taper_current_a),
+            charge_voltage_v=charge.spec.voltage_v,
+            taper_current_a=charge.spec.taper_current_a,
+            in_cv=charge.in_cv_band(voltage_v),
+            hold_left_s=charge.hold_left_s,
+        )
+
+    def report_from(self, due: PredictionInput) -> RuntimeReport:
+        """The :class:`RuntimeReport` of ``due``: time to empty, state of power, time to full."""
+        state, forecast = due.state, due.forecast
         lim = self.battery.limits
-        forecast = self.forecast()
-        min_power = self.charge.spec.idle_current_a * self.model.ocv.ocv(state.soc)
-        tte: TimeToEmpty = time_to_empty(self.model, state, lim.soc_min, forecast, min_power)
+        tte: TimeToEmpty = time_to_empty(self.model, state, lim.soc_min, forecast, due.min_power_w)
         sop = state_of_power(self.model, lim, state)
         ttf = math.nan
-        charge = self.charge
-        if charge.full:
+        if due.full:
             ttf = 0.0
-        elif charge.charging:
+        elif due.charging:
             ttf = time_to_full(
                 self.model,
                 state,
-                max(-charge.current_lp_a, charge.spec.taper_current_a),
-                charge.spec.voltage_v,
-                charge.spec.taper_current_a,
-                in_cv=charge.in_cv_band(voltage_v),
-                hold_left_s=charge.hold_left_s,
+                due.charge_current_a,
+                due.charge_voltage_v,
+                due.taper_current_a,
+                in_cv=due.in_cv,
+                hold_left_s=due.hold_left_s,
             )
         return RuntimeReport(
-            stamp_ns=stamp_ns,
-            t_s=t_s,
+            stamp_ns=due.stamp_ns,
+            t_s=due.t_s,
             soc=state.soc,
             soc_std=state.soc_std,
             time_to_empty_s=tte.time_s,
@@ -352,10 +423,10 @@ class RuntimeMonitor:
             max_discharge_current_60s_a=sop.max_discharge_current_60s_a,
             max_charge_current_10s_a=sop.max_charge_current_10s_a,
             max_charge_current_60s_a=sop.max_charge_current_60s_a,
-            level=self.level,
+            level=due.level,
             load_power_w=forecast.power_w,
             load_power_std_w=forecast.power_std_w(tte.time_s),
             load_source=forecast.source,
-            phase=charge.phase,
+            phase=due.phase,
             note=tte.note,
         )

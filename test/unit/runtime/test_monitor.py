@@ -115,6 +115,32 @@ def test_full_recalibrates_the_soc_and_says_so():
     assert after and after[-1].time_to_full_s == 0.0
 
 
+def test_a_deferred_prediction_is_the_one_made_on_its_sample():
+    """The node's monitor (``deferred``) takes a due prediction's inputs on its sample and
+    computes it at ``flush`` (after the SoC is published): every report equals the synchronous
+    one field for field, exactly (no tolerance: the same inputs through the same arithmetic),
+    through a discharge, a CC-CV charge (time to full) and FULL."""
+    now, later = tracker(LFP, soc=0.7), tracker(LFP, soc=0.7, deferred=True)
+    samples = [(5.0, 13.0)] * 200 + list(cc_cv())
+    made, flushed = [], []
+    for k, sample in enumerate(samples):
+        r_now = feed(now, [sample], t0_ns=k * S // 10)[0]
+        r_later = feed(later, [sample], t0_ns=k * S // 10)[0]
+        assert r_later.runtime is None
+        report = later.runtime.flush()
+        assert later.runtime.flush() is None  # computed once
+        assert (report is None) == (r_now.runtime is None)
+        if report is not None:
+            made.append(r_now.runtime)
+            flushed.append(report)
+            assert later.runtime.report is report
+    assert len(made) > 60
+    assert any(math.isfinite(r.time_to_full_s) and r.time_to_full_s > 0 for r in made)
+    assert made[-1].time_to_full_s == 0.0  # FULL reached
+    # NaN fields (the time to full while discharging) compare equal as NaN in both.
+    assert [repr(r) for r in flushed] == [repr(r) for r in made]
+
+
 def test_level_changes_are_events_and_level_overrides_apply_at_once():
     tr = tracker(SLA, estimator="coulomb", soc=0.505, levels=LevelSettings(debounce_s=5.0))
     results = feed(tr, [(20.0, 11.8)] * 400)  # 40 s at 20 A: 0.505 -> 0.46
