@@ -107,7 +107,7 @@ def job(args: tuple[str, str, str, float, float, str]) -> tuple:
     rmse_mv = 1000.0 * float(np.sqrt(np.mean((scaled.voltage_v - model_v) ** 2)))
     tuning = None
     if tuning_mode == "scaled" and estimator == "hybrid":
-        base = {**Hybrid.default_tuning, **battery.filters.get("hybrid", {})}
+        base = Hybrid.merged_tuning(battery.filters.get("hybrid"))
         tuning = scaled_hybrid_tuning(lam, base)
     soc0 = float(np.clip(series.soc_ref[0] + offset, 0.0, 1.0))
     est = make_estimator(estimator, battery, soc0, INITIAL_SOC_STD, tuning)

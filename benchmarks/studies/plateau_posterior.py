@@ -63,7 +63,7 @@ def posterior(ocv: OcvCurve, truth: float, start_std: float, sigma_v: float) -> 
 
 def model_error_v(battery: BatteryParams) -> float:
     """The hybrid's persistent model error for ``battery`` (``bias_std_v``, file or default)."""
-    tuning = {**Hybrid.default_tuning, **battery.filters.get("hybrid", {})}
+    tuning = Hybrid.merged_tuning(battery.filters.get("hybrid"))
     return float(tuning["bias_std_v"])
 
 

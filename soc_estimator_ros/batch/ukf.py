@@ -128,7 +128,7 @@ class UkfTuning:
     def of(cls, tuning: Mapping[str, Any] | None = None) -> UkfTuning:
         """From a tuning mapping (a battery file's ``filters.t2rc_ukf`` block, or entries of
         it) over the defaults; unknown entries are refused as ``T2rcUkf`` refuses them."""
-        m = T2rcUkf._merge_tuning(tuning)
+        m = T2rcUkf.merged_tuning(tuning)
         return cls(
             tuple(float(q) for q in m["q_diag"]),
             float(m["r"]),

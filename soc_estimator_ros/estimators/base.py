@@ -159,7 +159,7 @@ class Estimator(ABC):
         if not initial_soc_std > 0.0:
             raise ValueError(f"initial_soc_std must be > 0, got {initial_soc_std}")
         self.battery = battery
-        self.tuning = self._merge_tuning(tuning)
+        self.tuning = self.merged_tuning(tuning)
         policy = time_policy or TimePolicy(
             gap_current_std_a=0.1 * battery.capacity_ah  # 0.1 C of unknown current in a gap
         )
@@ -178,7 +178,10 @@ class Estimator(ABC):
 
     # -- configuration -----------------------------------------------------------------------
     @classmethod
-    def _merge_tuning(cls, tuning: Mapping[str, Any] | None) -> dict[str, Any]:
+    def merged_tuning(cls, tuning: Mapping[str, Any] | None) -> dict[str, Any]:
+        """The tuning an estimator of this class runs with: ``default_tuning`` under the
+        entries of ``tuning`` (a battery file's ``filters.<name>`` block), tuples as floats;
+        an unknown entry or a tuple of the wrong length is a ``ValueError``."""
         merged = dict(cls.default_tuning)
         for key, value in (tuning or {}).items():
             if key not in merged:

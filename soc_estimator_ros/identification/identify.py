@@ -525,7 +525,7 @@ def model_error(
     full with its counted SoC): ``model_error.py``; None (noted) when too few seconds of them
     run from a load to the hybrid's rest. ``v_models``: the model's voltage over each test with
     its SoC imposed (:func:`simulate_open_loop`, ``gap_s`` 0), when already simulated."""
-    tuning = {**Hybrid.default_tuning, **battery.filters.get("hybrid", {})}
+    tuning = Hybrid.merged_tuning(battery.filters.get("hybrid"))
     residuals = []
     for n, (test, soc) in enumerate(tests):
         if v_models is None:
