@@ -37,9 +37,10 @@ updates, each result becoming its new anchor: a rest reading of the OCV (once pe
 linearized at the count's own SoC, so a millivolt on LFP's plateau moves it as little as it
 moves the filter), and, while the model is trusted (inside the temperatures it was identified
 at, its innovations consistent), the filter's own SoC, de-weighted by its correlation: one
-independent reading per ``follow_tau_s``, its variance ``max(P_u, model_soc_std^2)``, the
-count's variance floored at ``model_soc_std^2`` (the UKF's ``P_u`` takes the model's error as
-white, so it leaves out what a persistent one costs; the guard floors ``P_u`` there too). So a
+independent reading per ``follow_tau_s``, its variance ``max(P_u, floor)``, the count's
+variance floored at ``floor`` (the UKF's ``P_u`` takes the model's error as white, so it
+leaves out what a persistent one costs; the guard floors ``P_u`` there too). The floor is the
+hybrid's (``Hybrid._model_soc_var``): ``model_soc_std^2``, more where the OCV is flat. So a
 wrong start that the filter corrects at light load is followed within minutes, and a model
 dragged outside its envelope is not. A gap or a consistency inflation of the filter inflates
 the count too.

@@ -87,7 +87,10 @@ papers report:
    "Do no harm"); ``model_prior: 1`` turns
    the guard off (the UKF's own SoC and variance are published). A rest OCV reading inside
    the identified temperatures, a reset and a CC-CV end re-anchor the count; so does the
-   UKF's own SoC while it is trusted (``follow_tau_s``, ``model_soc_std``: ``guard.py``).
+   UKF's own SoC while it is trusted (``follow_tau_s``: ``guard.py``). Both read the UKF's
+   SoC variance no smaller than the SoC the model's persistent error hides (the UKF's ``P``
+   takes the error as white): ``model_soc_std``, and where the OCV is flat
+   ``bias_std_v / |dOCV/dsoc|`` up to ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`).
    ``x`` and ``p`` stay the UKF's; ``soc`` and ``soc_var`` are the published (guarded) ones.
 8. **A series-resistance error state.** A pack of the same kind is not the pack the file was
    identified on: the corpus' packs spread +-15 % in resistance (bags/README.md), and the
@@ -194,6 +197,10 @@ class Hybrid(T2rcUkf):
         # the model's error as white): the floor of the UKF's SoC variance in the guard, and of
         # the count's when it follows the filter.
         "model_soc_std": 0.01,
+        # ... and where the OCV is flatter than that, the SoC the model's error hides there
+        # (bias_std_v over the OCV slope), up to this (item 7; chosen on the LFP tuning half,
+        # docs/accuracy.md "Where the OCV is flat, a floor on the filter's SoC std").
+        "flat_soc_std_max": 0.02,
         # Item 8: the series-resistance error state, in fractions of the file's 5-s resistance:
         # the prior is the std of the corpus' +-15 % uniform pack spread (not fitted), the
         # drift per sqrt(hour) what a mission's warming and ageing move it.
@@ -316,8 +323,23 @@ class Hybrid(T2rcUkf):
         d = self.model.extrapolation_c(self._temp_c)
         if d != 0.0:
             prior *= math.exp(-0.5 * (d / self.tuning["extrapolation_scale_c"]) ** 2)
-        u_var = max(float(self.p[i, i]), float(self.tuning["model_soc_std"]) ** 2)
+        u_var = max(float(self.p[i, i]), self._model_soc_var())
         return guard(float(self.x[i]), u_var, self.count.soc, self.count.var, prior)
+
+    def _model_soc_var(self) -> float:
+        """The floor of the UKF's SoC variance in the guard and when the count follows it
+        (item 7): what the model's persistent voltage error (``bias_std_v``) hides in SoC,
+        ``max(model_soc_std, min(bias_std_v / |dOCV/dsoc|, flat_soc_std_max))^2`` at the UKF's
+        SoC. The UKF's ``P`` takes every reading as independent, so on a flat OCV its SoC
+        std fell to 1.5 % where its error was 3 (``lfp_tuning_1024``, coverage 71 %)."""
+        t = self.tuning
+        var = float(t["model_soc_std"]) ** 2
+        cap = float(t["flat_soc_std_max"])
+        if cap > 0.0:
+            slope = abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
+            flat = cap if slope * cap <= float(t["bias_std_v"]) else float(t["bias_std_v"]) / slope
+            var = max(var, flat * flat)
+        return var
 
     @property
     def soc(self) -> float:
@@ -364,7 +386,7 @@ class Hybrid(T2rcUkf):
             return
         t = self.tuning
         i = self.soc_index
-        floor_var = float(t["model_soc_std"]) ** 2
+        floor_var = self._model_soc_var()
         u_var = max(float(self.kf.P[i, i]), floor_var)
         tau_s = float(t["follow_tau_s"])
         r = u_var * tau_s / min(dt_s, tau_s)  # a gap longer than tau is still one reading

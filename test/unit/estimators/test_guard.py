@@ -97,3 +97,30 @@ def test_inside_the_envelope_a_wrong_start_is_followed() -> None:
     feed(est, 10.0, 0.5, est.model.ocv.ocv(0.5), 25.0)
     assert abs(est.soc - float(est.x[0])) < 0.02  # the issue's 2 % within 10 minutes
     assert est.x[0] < 0.6
+
+
+LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
+
+
+@pytest.mark.parametrize("soc", [0.1, 0.38, 0.65])
+def test_the_filters_soc_floor_is_what_the_models_error_hides(soc: float) -> None:
+    """Item 7's floor of the UKF's SoC variance, on the LFP file at a steep SoC (0.1: the
+    model_soc_std), a sloped one (0.38: bias_std_v over the OCV slope, 1.7 %) and the flat plateau
+    (0.65: flat_soc_std_max); the guard reads the UKF's variance no smaller (exact: the same
+    max over the same floats)."""
+    est = make_estimator("hybrid", LFP, soc, 1e-4)
+    t = est.tuning
+    hidden = t["bias_std_v"] / abs(est.model.ocv.slope(soc))
+    expected = max(t["model_soc_std"], min(hidden, t["flat_soc_std_max"]))
+    assert math.sqrt(est._model_soc_var()) == pytest.approx(expected, rel=1e-12)
+    which = {0.1: t["model_soc_std"], 0.38: hidden, 0.65: t["flat_soc_std_max"]}[soc]
+    assert expected == which  # each SoC is the case it is named for
+    g = est.guarded()
+    # The start's P (1e-8) is below the floor: the mixture of the UKF at the floor and the
+    # count at the start's variance, d = 0 (no disagreement).
+    assert g.soc_var == pytest.approx(
+        g.model_weight * expected**2 + (1 - g.model_weight) * 1e-8, rel=1e-9
+    )
+    tuning = {**LFP.filters["hybrid"], "flat_soc_std_max": 0.0}  # the file's, the floor off
+    off = make_estimator("hybrid", LFP, soc, 1e-4, tuning=tuning)
+    assert off._model_soc_var() == t["model_soc_std"] ** 2
