@@ -1,0 +1,64 @@
+"""From a wrong start (issue 24): benchmarks/studies/wrong_start.py on a bundled corpus
+mission, ``bags/lfp_validation_1001`` (validation half: nothing was tuned on it).
+
+The issue's target: from +-30 %, within 2 % within 10 minutes wherever the OCV can tell, and
+where it cannot, sigma >= |error| / 2. The study reads "can tell" on the truth and the file
+(the OCV resolving the true SoC to 1 point under the model's persistent error); the mission
+starts unrested at 60 % on LFP's plateau and reaches the step below it after 30 minutes.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT, load_benchmark
+
+BAG = REPO_ROOT / "bags" / "lfp_validation_1001"
+#: The start's std: the +-30 % error at 2 sigma, so sigma >= |error| / 2 holds at the start.
+START_STD = 0.15
+
+pytestmark = pytest.mark.skipif(not BAG.is_dir(), reason=f"no {BAG.name} under bags/")
+
+
+@cache
+def case():
+    study = load_benchmark("studies/wrong_start")
+    (found,) = [c for c in study.corpus_cases(BAG.parent) if c.name == BAG.name]
+    return study, found
+
+
+def test_the_ocv_can_tell_where_it_resolves_the_true_soc_to_a_point() -> None:
+    """tell_index: the first sample whose true SoC the OCV resolves to 1 point under the
+    file's bias_std_v, none before it (the definition, checked on the truth directly)."""
+    study, c = case()
+    k = study.tell_index(c)
+    assert k is not None and k > 0
+    ocv = c.battery.thevenin_model().ocv
+    bias_v = 0.020402541293514393  # the LFP file's filters.hybrid.bias_std_v
+    resolves = [bias_v <= 0.01 * abs(ocv.slope(float(s))) for s in c.soc_ref[: k + 1]]
+    assert resolves[-1] and not any(resolves[:-1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("offset", [0.3, -0.3])
+def test_a_wrong_start_is_within_two_points_ten_minutes_after_the_ocv_can_tell(offset) -> None:
+    """Measured 0.9 and 0.7 points (+30 and -30 %) from 10 minutes after the step; the bound
+    is the issue's 2 points."""
+    study, c = case()
+    row = study.score(c, offset, START_STD)
+    assert row is not None and np.isfinite(row["after"])
+    assert row["after"] < 2.0, row
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured sigma >= |error| / 2 on 92.1 % (+30 %) and 86.5 % (-30 %) of the samples "
+    "before: on the plateau the hybrid's sigma falls to 1.5-2 % before the step corrects it",
+)
+def test_until_then_sigma_holds_half_the_error() -> None:
+    study, c = case()
+    held = [study.score(c, off, START_STD)["held"] for off in (0.3, -0.3)]
+    assert min(held) == 100.0, held
