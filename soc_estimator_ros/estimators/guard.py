@@ -36,7 +36,8 @@ and charge moved, not as a random walk. Two readings are fused into the count as
 updates, each result becoming its new anchor: a rest reading of the OCV (once per rest,
 linearized at the count's own SoC, so a millivolt on LFP's plateau moves it as little as it
 moves the filter), and, while the model is trusted (inside the temperatures it was identified
-at, its innovations consistent), the filter's own SoC, de-weighted by its correlation: one
+at, or outside them where the OCV resolves the SoC: ``Hybrid._resolves_outside``; its
+innovations consistent), the filter's own SoC, de-weighted by its correlation: one
 independent reading per ``follow_tau_s``, its variance ``max(P_u, floor)``, the count's
 variance floored at ``floor`` (the UKF's ``P_u`` takes the model's error as white, so it
 leaves out what a persistent one costs; the guard floors ``P_u`` there too). The floor is the

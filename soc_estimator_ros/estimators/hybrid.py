@@ -87,7 +87,11 @@ papers report:
    "Do no harm"); ``model_prior: 1`` turns
    the guard off (the UKF's own SoC and variance are published). A rest OCV reading inside
    the identified temperatures, a reset and a CC-CV end re-anchor the count; so does the
-   UKF's own SoC while it is trusted (``follow_tau_s``: ``guard.py``). Both read the UKF's
+   UKF's own SoC while it is trusted (``follow_tau_s``: ``guard.py``): inside the identified
+   temperatures, and outside them where the OCV still resolves the SoC to
+   ``outside_follow_soc_max`` under the model's error grown as item 6 grows the noise (a
+   wrong start at -3 degC on LFP's top knee stayed 30 points off with the count, the UKF
+   beside it right within a minute). Both read the UKF's
    SoC variance no smaller than the SoC the model's persistent error hides (the UKF's ``P``
    takes the error as white): ``model_soc_std``, and where the OCV is flat
    ``bias_std_v / |dOCV/dsoc|`` up to ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`).
@@ -201,6 +205,10 @@ class Hybrid(T2rcUkf):
         # (bias_std_v over the OCV slope), up to this (item 7; chosen on the LFP tuning half,
         # docs/accuracy.md "Where the OCV is flat, a floor on the filter's SoC std").
         "flat_soc_std_max": 0.02,
+        # SoC: outside its temperatures the count follows the UKF only where the OCV resolves
+        # the SoC to this under the model's grown error (item 7; docs/accuracy.md, "From a
+        # wrong start"): on LFP, the knees and the top, not the plateau.
+        "outside_follow_soc_max": 0.01,
         # Item 8: the series-resistance error state, in fractions of the file's 5-s resistance:
         # the prior is the std of the corpus' +-15 % uniform pack spread (not fitted), the
         # drift per sqrt(hour) what a mission's warming and ageing move it.
@@ -377,12 +385,26 @@ class Hybrid(T2rcUkf):
         var_v2 = float(self.tuning["ocv_std_v"]) ** 2 + self.voltage_offset_var_v2
         self.count.fuse(innovation, self.model.ocv.slope(c), var_v2)
 
+    def _resolves_outside(self, temp_c) -> bool:
+        """Inside the identified temperatures, True; outside, whether the OCV at the UKF's SoC
+        still resolves it to ``outside_follow_soc_max`` under the model's error grown as item
+        6 grows the noise, ``bias_std_v sqrt(1 + (d / extrapolation_scale_c)^2)`` at d degC
+        out: a knee tells the SoC through a model volts wrong, a plateau does not."""
+        d = self.model.extrapolation_c(temp_c)
+        if d == 0.0:
+            return True
+        t = self.tuning
+        grown_v = float(t["bias_std_v"]) * math.sqrt(1.0 + (d / t["extrapolation_scale_c"]) ** 2)
+        slope = abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
+        return grown_v <= float(t["outside_follow_soc_max"]) * slope
+
     def _follow_trusted_filter(self, dt_s: float, temp_c) -> None:
         """The trusted filter's SoC into the count (``guard.py``): inside the identified
-        temperatures, the NIS average below its gate, one reading per ``follow_tau_s``; the
-        count never gets surer than ``model_soc_std`` from it (the model's error is not
-        white)."""
-        if dt_s <= 0.0 or self.inflating or self.model.extrapolation_c(temp_c) != 0.0:
+        temperatures or where the OCV resolves the SoC outside them
+        (:meth:`_resolves_outside`), the NIS average below its gate, one reading per
+        ``follow_tau_s``; the count never gets surer than the floor (:meth:`_model_soc_var`)
+        from it (the model's error is not white)."""
+        if dt_s <= 0.0 or self.inflating or not self._resolves_outside(temp_c):
             return
         t = self.tuning
         i = self.soc_index

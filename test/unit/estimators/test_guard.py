@@ -124,3 +124,24 @@ def test_the_filters_soc_floor_is_what_the_models_error_hides(soc: float) -> Non
     tuning = {**LFP.filters["hybrid"], "flat_soc_std_max": 0.0}  # the file's, the floor off
     off = make_estimator("hybrid", LFP, soc, 1e-4, tuning=tuning)
     assert off._model_soc_var() == t["model_soc_std"] ** 2
+
+
+def test_outside_the_envelope_a_knee_still_corrects_the_count() -> None:
+    """At -3 degC (the LFP file is trusted from 2 degC), a start 30 points low at a full
+    pack's voltage under 0.36 A (lfp_tuning_1004's start): the OCV's top knee tells the SoC
+    through a model volts wrong, so the count follows the UKF there
+    (``outside_follow_soc_max``); on the plateau at the same temperature it does not, and
+    inside the range it always does."""
+    est = make_estimator("hybrid", LFP, 0.70, 0.15)
+    feed(est, 10.0, 0.36, est.model.ocv.ocv(0.995), -3.0)
+    assert est.x[0] > 0.95  # the UKF read the knee
+    assert est.count.soc > 0.95 and est.soc > 0.95  # and the count followed it
+    assert est._resolves_outside(-3.0)
+    est.kf.x[0] = 0.65  # the plateau: 20.4 mV grown 2.7-fold, a 45 mV/unit slope
+    assert not est._resolves_outside(-3.0)
+    assert est._resolves_outside(20.0)
+    off = make_estimator(
+        "hybrid", LFP, 0.70, 0.15, tuning={**LFP.filters["hybrid"], "outside_follow_soc_max": 0}
+    )
+    feed(off, 10.0, 0.36, off.model.ocv.ocv(0.995), -3.0)
+    assert off.x[0] > 0.95 and off.soc < 0.75  # without it the published SoC keeps the count
