@@ -97,6 +97,8 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "model_prior": NONE,
     "follow_tau_s": NONE,
     "model_soc_std": NONE,
+    "flat_soc_std_max": NONE,  # SoC
+    "outside_follow_soc_max": NONE,  # SoC
     # fractions of the file's own 5-s pulse resistance, which the scaling carries
     "resistance_std_frac": NONE,
     "resistance_drift_frac_per_h": NONE,

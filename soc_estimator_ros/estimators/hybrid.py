@@ -344,10 +344,16 @@ class Hybrid(T2rcUkf):
         var = float(t["model_soc_std"]) ** 2
         cap = float(t["flat_soc_std_max"])
         if cap > 0.0:
-            slope = abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
-            flat = cap if slope * cap <= float(t["bias_std_v"]) else float(t["bias_std_v"]) / slope
+            flat = min(self._hidden_soc(float(t["bias_std_v"])), cap)
             var = max(var, flat * flat)
         return var
+
+    def _hidden_soc(self, error_v: float) -> float:
+        """The SoC a voltage error ``error_v`` hides on the OCV at the UKF's SoC: the error
+        over ``|dOCV/dsoc|`` there (inf where the curve is flat). Items 7 and 9 read the
+        model's persistent error ``bias_std_v`` through it."""
+        slope = abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
+        return error_v / slope if slope > 0.0 else math.inf
 
     @property
     def soc(self) -> float:
@@ -395,8 +401,7 @@ class Hybrid(T2rcUkf):
             return True
         t = self.tuning
         grown_v = float(t["bias_std_v"]) * math.sqrt(1.0 + (d / t["extrapolation_scale_c"]) ** 2)
-        slope = abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
-        return grown_v <= float(t["outside_follow_soc_max"]) * slope
+        return self._hidden_soc(grown_v) <= float(t["outside_follow_soc_max"])
 
     def _follow_trusted_filter(self, dt_s: float, temp_c) -> None:
         """The trusted filter's SoC into the count (``guard.py``): inside the identified
@@ -512,8 +517,7 @@ class Hybrid(T2rcUkf):
         flat = (
             limit > 0.0
             and self._rest_reading(current_a)
-            and float(t["bias_std_v"])
-            > limit * abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
+            and self._hidden_soc(float(t["bias_std_v"])) > limit
         )
         if not flat:
             self._flat_innov_v = self._flat_r_v2 = 0.0

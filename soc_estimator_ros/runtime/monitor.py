@@ -349,20 +349,6 @@ class RuntimeMonitor:
             return LoadForecast(self.mission_power_w, source="mission")
         return self.window.forecast()
 
-    def predict(
-        self,
-        stamp_ns: int,
-        t_s: float,
-        est: Estimate,
-        estimator: Any,
-        voltage_v: float,
-        temperature_c: float | None,
-    ) -> RuntimeReport:
-        """A :class:`RuntimeReport` for the present state."""
-        return self.report_from(
-            self.prediction_input(stamp_ns, t_s, est, estimator, voltage_v, temperature_c)
-        )
-
     def prediction_input(
         self,
         stamp_ns: int,
