@@ -157,6 +157,16 @@ def _job(args: tuple[Case, str, float, dict | None]) -> dict[str, float | str]:
     return score(*args)
 
 
+def add_tuning_option(ap: argparse.ArgumentParser, help_text: str) -> None:
+    """``--tuning KEY=VALUE``, repeatable (read with :func:`tuning_of`)."""
+    ap.add_argument("--tuning", action="append", default=[], metavar="KEY=VALUE", help=help_text)
+
+
+def tuning_of(entries: list[str]) -> dict[str, float] | None:
+    """``--tuning``'s entries as {key: value}; None without any."""
+    return {k: float(v) for k, v in (e.split("=", 1) for e in entries)} or None
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--real", type=Path, help="the real-data directory (Panasonic)")
@@ -180,13 +190,7 @@ def main() -> int:
         type=Path,
         help="a battery file for --corpus' missions of its chemistry (default: the bundled)",
     )
-    ap.add_argument(
-        "--tuning",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a tuning entry of the estimator over its file's (e.g. model_prior=1: no guard)",
-    )
+    add_tuning_option(ap, "a tuning entry of the estimator over its file's (e.g. model_prior=1)")
     args = ap.parse_args()
     cases: list[Case] = []
     if args.real is not None:
@@ -199,7 +203,7 @@ def main() -> int:
         cases += corpus_cases(args.corpus, params)
     cases = [c for c in cases if not args.split or c.split == args.split]
     cases = [c for c in cases if not args.chemistry or c.battery.chemistry == args.chemistry]
-    tuning = {k: float(v) for k, v in (t.split("=", 1) for t in args.tuning)} or None
+    tuning = tuning_of(args.tuning)
     jobs = [(c, e, args.start_std, tuning) for c in cases for e in args.estimators.split(",")]
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
         rows = list(pool.map(_job, jobs))

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from do_no_harm import WINDOW_S, Case, corpus_cases  # noqa: E402
+from do_no_harm import WINDOW_S, Case, add_tuning_option, corpus_cases, tuning_of  # noqa: E402
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.estimators.hybrid import Hybrid  # noqa: E402
@@ -121,15 +121,9 @@ def main() -> int:
     ap.add_argument("--chemistry", default="", help="only missions of this chemistry")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--start-std", type=float, default=START_STD, help="the start's std")
-    ap.add_argument(
-        "--tuning",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a hybrid tuning entry over its file's",
-    )
+    add_tuning_option(ap, "a hybrid tuning entry over its file's")
     args = ap.parse_args()
-    tuning = {k: float(v) for k, v in (t.split("=", 1) for t in args.tuning)} or None
+    tuning = tuning_of(args.tuning)
     if not args.corpus.is_dir():
         print(f"wrong_start: no corpus at {args.corpus}")
         return 1

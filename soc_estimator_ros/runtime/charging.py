@@ -57,6 +57,16 @@ class ChargePhase(str, Enum):
     CV = "cv"  # confirmed, voltage in the CV band
     FULL = "full"  # a CC-CV end was detected; until the pack discharges
 
+    @property
+    def full(self) -> bool:
+        """A detected full pack that has not discharged since."""
+        return self is ChargePhase.FULL
+
+    @property
+    def charging(self) -> bool:
+        """A confirmed charge in its CC or CV phase."""
+        return self in (ChargePhase.CC, ChargePhase.CV)
+
 
 @dataclass(frozen=True)
 class ChargeSpec:
@@ -128,13 +138,13 @@ class ChargeMonitor:
 
     @property
     def full(self) -> bool:
-        """A detected full pack that has not discharged since."""
-        return self.phase is ChargePhase.FULL
+        """A detected full pack that has not discharged since (:attr:`ChargePhase.full`)."""
+        return self.phase.full
 
     @property
     def charging(self) -> bool:
-        """A confirmed charge in its CC or CV phase."""
-        return self.phase in (ChargePhase.CC, ChargePhase.CV)
+        """A confirmed charge in its CC or CV phase (:attr:`ChargePhase.charging`)."""
+        return self.phase.charging
 
     @property
     def hold_left_s(self) -> float:

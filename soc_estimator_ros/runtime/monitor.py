@@ -82,8 +82,6 @@ class PredictionInput:
     min_power_w: float
     level: BatteryLevel
     phase: ChargePhase
-    full: bool
-    charging: bool
     charge_current_a: float
     charge_voltage_v: float
     taper_current_a: float
@@ -369,8 +367,6 @@ class RuntimeMonitor:
             min_power_w=charge.spec.idle_current_a * self.model.ocv.ocv(state.soc),
             level=self.level,
             phase=charge.phase,
-            full=charge.full,
-            charging=charge.charging,
             charge_current_a=max(-charge.current_lp_a, charge.spec.taper_current_a),
             charge_voltage_v=charge.spec.voltage_v,
             taper_current_a=charge.spec.taper_current_a,
@@ -385,9 +381,9 @@ class RuntimeMonitor:
         tte: TimeToEmpty = time_to_empty(self.model, state, lim.soc_min, forecast, due.min_power_w)
         sop = state_of_power(self.model, lim, state)
         ttf = math.nan
-        if due.full:
+        if due.phase.full:
             ttf = 0.0
-        elif due.charging:
+        elif due.phase.charging:
             ttf = time_to_full(
                 self.model,
                 state,
