@@ -39,8 +39,9 @@ moves the filter), and, while the model is trusted (inside the temperatures it w
 at, or outside them where the OCV resolves the SoC: ``Hybrid._resolves_outside``; its
 innovations consistent), the filter's own SoC, de-weighted by its correlation: one
 independent reading per ``follow_tau_s``, its variance ``max(P_u, floor)``, the count's
-variance floored at ``floor`` (the UKF's ``P_u`` takes the model's error as white, so it
-leaves out what a persistent one costs; the guard floors ``P_u`` there too). The floor is the
+variance floored at ``floor`` unless it was below already (the UKF's ``P_u`` takes the
+model's error as white, so it leaves out what a persistent one costs; the guard floors
+``P_u`` there too). The floor is the
 hybrid's (``Hybrid._model_soc_var``): ``model_soc_std^2``, more where the OCV is flat. So a
 wrong start that the filter corrects at light load is followed within minutes, and a model
 dragged outside its envelope is not. A gap or a consistency inflation of the filter inflates
@@ -115,11 +116,13 @@ class ChargeCount:
 
     def fuse(self, innovation: float, h: float, r: float, var_floor: float = 0.0) -> None:
         """Scalar Kalman update with a reading ``y = h SoC + noise(r)`` whose innovation (reading
-        minus ``h`` times the count) is ``innovation``; the result, its variance no smaller
-        than ``var_floor``, is the new anchor."""
+        minus ``h`` times the count) is ``innovation``; the result is the new anchor, its
+        variance no smaller than ``var_floor`` (a reading whose error is not white cannot make
+        the count surer than that), nor larger than before: an update never makes the count
+        less sure, so a count already surer than the floor keeps its variance."""
         p = self.var
         k = p * h / (h * h * p + r)
-        self.anchor(self.soc + k * innovation, max((1.0 - k * h) * p, var_floor))
+        self.anchor(self.soc + k * innovation, max((1.0 - k * h) * p, min(p, var_floor)))
 
 
 @dataclass(frozen=True)

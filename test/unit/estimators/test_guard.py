@@ -65,6 +65,10 @@ def test_count_fuse_is_a_scalar_kalman_update_and_clips() -> None:
     assert count.soc == pytest.approx(0.55) and count.var == pytest.approx(0.005)
     count.fuse(0.0, 1.0, 1e-9, var_floor=1e-4)
     assert count.var == pytest.approx(1e-4)  # never surer than the floor
+    count.anchor(0.5, 1e-6)  # surer than the floor already: it moves, its variance stays
+    count.fuse(0.1, 1.0, 1e-4, var_floor=1e-4)  # K = 1e-6 / (1e-6 + 1e-4) = 1 / 101
+    assert count.soc == pytest.approx(0.5 + 0.1 / 101.0, rel=1e-12)
+    assert count.var == pytest.approx(1e-6, rel=1e-12)
     count.anchor(0.999, 1e-4)
     count.step(-5.0, 3600.0)  # an hour of 1 C charge from full: clipped, the excess is variance
     assert count.soc == 1.0 and count.var > 0.9
