@@ -69,9 +69,7 @@ def score(
     soc0 = float(np.clip(case.soc_ref[0], 0.0, 1.0))
     out = {}
     for name in (estimator, "coulomb"):
-        tun = (
-            {**case.battery.filters.get(name, {}), **(tuning or {})} if name != "coulomb" else None
-        )
+        tun = file_tuning(case, name, tuning) if name != "coulomb" else None
         est = make_estimator(name, case.battery, soc0, start_std, tuning=tun)
         e = run_estimator(est, case.series)
         after = (case.series.t_s - case.series.t_s[0] >= WINDOW_S) & np.isfinite(case.soc_ref)
@@ -95,6 +93,20 @@ def score(
         "coverage": 100 * cov,
         "std": 100 * std,
     }
+
+
+def file_tuning(case: Case, estimator: str, tuning: dict | None) -> dict:
+    """The tuning of ``estimator`` in the case's battery file, updated with ``tuning``."""
+    return {**case.battery.filters.get(estimator, {}), **(tuning or {})}
+
+
+def selected(cases: list[Case], split: str, chemistry: str) -> list[Case]:
+    """The cases of ``split`` and ``chemistry`` (each: all when empty)."""
+    return [
+        c
+        for c in cases
+        if (not split or c.split == split) and (not chemistry or c.battery.chemistry == chemistry)
+    ]
 
 
 def with_extrapolation(
@@ -201,8 +213,7 @@ def main() -> int:
     if args.corpus is not None:
         params = None if args.params is None else load_battery_params(args.params)
         cases += corpus_cases(args.corpus, params)
-    cases = [c for c in cases if not args.split or c.split == args.split]
-    cases = [c for c in cases if not args.chemistry or c.battery.chemistry == args.chemistry]
+    cases = selected(cases, args.split, args.chemistry)
     tuning = tuning_of(args.tuning)
     jobs = [(c, e, args.start_std, tuning) for c in cases for e in args.estimators.split(",")]
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:

@@ -37,7 +37,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from do_no_harm import WINDOW_S, Case, add_tuning_option, corpus_cases, tuning_of  # noqa: E402
+from do_no_harm import (  # noqa: E402
+    WINDOW_S,
+    Case,
+    add_tuning_option,
+    corpus_cases,
+    file_tuning,
+    selected,
+    tuning_of,
+)
 
 from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.estimators.hybrid import Hybrid  # noqa: E402
@@ -69,7 +77,7 @@ def score(
     soc0 = float(case.soc_ref[0]) + offset
     if not 0.0 <= soc0 <= 1.0:
         return None
-    tun = {**case.battery.filters.get("hybrid", {}), **(tuning or {})}
+    tun = file_tuning(case, "hybrid", tuning)
     est = make_estimator("hybrid", case.battery, soc0, start_std, tuning=tun)
     out = run_estimator(est, case.series)
     t = case.series.t_s - case.series.t_s[0]
@@ -127,12 +135,7 @@ def main() -> int:
     if not args.corpus.is_dir():
         print(f"wrong_start: no corpus at {args.corpus}")
         return 1
-    cases = [
-        c
-        for c in corpus_cases(args.corpus)
-        if (not args.split or c.split == args.split)
-        and (not args.chemistry or c.battery.chemistry == args.chemistry)
-    ]
+    cases = selected(corpus_cases(args.corpus), args.split, args.chemistry)
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
         jobs = [(c, o, args.start_std, tuning) for c in cases for o in OFFSETS]
         rows = [r for r in pool.map(_job, jobs) if r]

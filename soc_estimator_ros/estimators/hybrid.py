@@ -91,10 +91,10 @@ papers report:
    temperatures, and outside them where the OCV still resolves the SoC to
    ``outside_follow_soc_max`` under the model's error grown as item 6 grows the noise (a
    wrong start at -3 degC on LFP's top knee stayed 30 points off with the count, the UKF
-   beside it right within a minute). Both read the UKF's
-   SoC variance no smaller than the SoC the model's persistent error hides (the UKF's ``P``
-   takes the error as white): ``model_soc_std``, and where the OCV is flat
-   ``bias_std_v / |dOCV/dsoc|`` up to ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`).
+   beside it right within a minute). Both read the UKF's SoC variance no smaller than the
+   SoC the model's persistent error hides (the UKF's ``P`` takes the error as white):
+   ``model_soc_std``, and where the OCV is flat ``bias_std_v / |dOCV/dsoc|`` up to
+   ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`).
    ``x`` and ``p`` stay the UKF's; ``soc`` and ``soc_var`` are the published (guarded) ones.
 8. **A series-resistance error state.** A pack of the same kind is not the pack the file was
    identified on: the corpus' packs spread +-15 % in resistance (bags/README.md), and the
@@ -351,7 +351,8 @@ class Hybrid(T2rcUkf):
     def _hidden_soc(self, error_v: float) -> float:
         """The SoC a voltage error ``error_v`` hides on the OCV at the UKF's SoC: the error
         over ``|dOCV/dsoc|`` there (inf where the curve is flat). Items 7 and 9 read the
-        model's persistent error ``bias_std_v`` through it."""
+        model's persistent error ``bias_std_v`` through it, item 10 the hysteresis offset's
+        std."""
         slope = abs(self.model.ocv.slope(float(self.kf.x[self.soc_index])))
         return error_v / slope if slope > 0.0 else math.inf
 
@@ -400,7 +401,7 @@ class Hybrid(T2rcUkf):
         if d == 0.0:
             return True
         t = self.tuning
-        grown_v = float(t["bias_std_v"]) * math.sqrt(1.0 + (d / t["extrapolation_scale_c"]) ** 2)
+        grown_v = float(t["bias_std_v"]) * math.sqrt(self._noise_growth(d))
         return self._hidden_soc(grown_v) <= float(t["outside_follow_soc_max"])
 
     def _follow_trusted_filter(self, dt_s: float, temp_c) -> None:
@@ -488,8 +489,14 @@ class Hybrid(T2rcUkf):
         # Item 6, at rest too: the OCV's temperature shift is not known there either.
         d = self.model.extrapolation_c(self._temp_c)
         if d != 0.0:
-            var *= 1.0 + (d / self.tuning["extrapolation_scale_c"]) ** 2
+            var *= self._noise_growth(d)
         return var
+
+    def _noise_growth(self, d_c: float) -> float:
+        """Item 6: the factor on the measurement variance ``d_c`` degC outside the identified
+        temperatures, ``1 + (d_c / extrapolation_scale_c)^2``; item 7's knee rule grows the
+        model's error by its square root (:meth:`_resolves_outside`)."""
+        return 1.0 + (d_c / self.tuning["extrapolation_scale_c"]) ** 2
 
     def _outside_update_currents(self, current_a: float) -> bool:
         """Item 1: a current above ``update_c_rate_max``, or a charge above
@@ -548,8 +555,7 @@ class Hybrid(T2rcUkf):
         limit = float(self.tuning["ocv_soc_resolution_max"])
         if limit <= 0.0:  # item 9 off: this one too
             return False
-        slope = self.model.ocv.slope(float(self.kf.x[self.soc_index]))
-        return var_v2 > (limit * slope) ** 2
+        return self._hidden_soc(math.sqrt(var_v2)) > limit
 
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
