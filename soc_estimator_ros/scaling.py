@@ -105,6 +105,8 @@ TUNING_UNITS: dict[str, Unit | str] = {
     # item 9: SoC fractions and a count of std
     "ocv_soc_resolution_max": NONE,
     "ocv_contradiction_sigma": NONE,
+    # item 11: a count of std
+    "persistent_innovation_sigma": NONE,
 }
 
 #: The unit of each field of the file's sections that carries one (the others are SoC,

@@ -37,11 +37,11 @@ updates, each result becoming its new anchor: a rest reading of the OCV (once pe
 linearized at the count's own SoC, so a millivolt on LFP's plateau moves it as little as it
 moves the filter), and, while the model is trusted (inside the temperatures it was identified
 at, or outside them where the OCV resolves the SoC: ``Hybrid._resolves_outside``; its
-innovations consistent), the filter's own SoC, de-weighted by its correlation: one
-independent reading per ``follow_tau_s``, its variance ``max(P_u, floor)``, the count's
-variance floored at ``floor`` unless it was below already (the UKF's ``P_u`` takes the
-model's error as white, so it leaves out what a persistent one costs; the guard floors
-``P_u`` there too). The floor is the hybrid's (``Hybrid._model_soc_var``):
+innovations consistent, and not persistently off: hybrid item 11), the filter's own SoC,
+de-weighted by its correlation: one independent reading per ``follow_tau_s``, its variance
+``max(P_u, floor)``, the count's variance floored at ``floor`` unless it was below already
+(the UKF's ``P_u`` takes the model's error as white, so it leaves out what a persistent one
+costs; the guard floors ``P_u`` there too). The floor is the hybrid's (``Hybrid._model_soc_var``):
 ``model_soc_std^2``, more where the OCV is flat. So a wrong start that the filter corrects
 at light load is followed within minutes, and a model dragged outside its envelope is not. A
 gap or a consistency inflation of the filter inflates the count too.

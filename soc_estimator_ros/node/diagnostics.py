@@ -24,7 +24,10 @@ key-value pairs (the estimate, the counts per rejection reason, ...). Problems:
   cell over or under its voltage limits, WARN for cell readings rejected since the last report;
 * WARN: the hybrid's guard (``estimators/guard.py``) weighs its voltage model below
   :data:`MODEL_WEIGHT_WARN`: the filter and the charge count disagree beyond the count's error
-  budget, and the published SoC follows the count.
+  budget, and the published SoC follows the count;
+* WARN: the hybrid's voltage model is off by a persistent error under load (item 11: the
+  innovation averaged over a minute beyond what the filter's uncertainty and the noise
+  explain): the voltage counts as one reading a minute and the count does not follow it.
 
 The values hold the estimate, the counts, the level and its thresholds, the charge phase, and
 the runtime monitor's latest prediction under ``battery/runtime``'s labels.
@@ -157,6 +160,14 @@ class Diagnostics:
                     "follows the charge count",
                 )
             )
+        if hybrid is not None and hybrid.persistent_error:
+            problems.append(
+                (
+                    Level.WARN,
+                    f"voltage model off by {1000.0 * hybrid.innovation_avg_v:+.0f} mV under "
+                    "load for a minute: read as one reading a minute",
+                )
+            )
         cell_problems, cell_values = self._cells()
         problems += cell_problems
         health = tr.health
@@ -223,6 +234,8 @@ class Diagnostics:
                 ("soc_model", float(hybrid.x[hybrid.soc_index])),
                 ("soc_count", charge_count.soc),
                 ("soc_count_std", math.sqrt(charge_count.var)),
+                ("innovation_avg_v", hybrid.innovation_avg_v),
+                ("model_error_persistent", str(hybrid.persistent_error).lower()),
             ]
         if health is not None:
             values += [(f"health_{k}", v) for k, v in health.fields().items()]
