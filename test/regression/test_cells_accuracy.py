@@ -27,7 +27,7 @@ MISSIONS = ("lfp4s_cells_1_full", "lfp4s_cells_2_partial", "lfp4s_cells_3_cold")
 #: nothing corrects it before the step near 0.75, and a cell's SoC is the pack's plus its
 #: deviation (docs/cells.md).
 MISSED: dict[tuple[str, str], str] = {
-    ("lfp4s_cells_2_partial", "per-cell MAE"): "measured cell MAE % 1.79 1.75 0.91 1.23: "
+    ("lfp4s_cells_2_partial", "per-cell MAE"): "measured cell MAE % 1.70 1.66 0.81 1.15: "
     "cells 1 and 2 above 1.5 (the pack's hybrid on the plateau from a wide OCV start)",
     ("lfp4s_cells_3_cold", "per-cell MAE"): "measured cell MAE % 1.99 1.24 2.48 1.41: the "
     "pack's hybrid off the cells' mean (cold OCV start)",
