@@ -166,8 +166,8 @@ papers report:
    swapped or charged while the node was off): the voltage is read again. A rest reading is
    the OCV table's and is not tested. Where the model holds the test never fires and the
    filter is the one without it, to the bit (tested). ``persistent_innovation_sigma: 0``
-   turns it off. Chosen on nothing: neutral on both tuning halves (docs/accuracy.md, "A
-   persistent innovation under load").
+   turns it off. Fixed beforehand, not fitted: it is neutral on both tuning halves
+   (docs/accuracy.md, "A persistent innovation under load").
 """
 
 from __future__ import annotations
@@ -435,10 +435,9 @@ class Hybrid(T2rcUkf):
     def _follow_trusted_filter(self, dt_s: float, temp_c) -> None:
         """The trusted filter's SoC into the count (``guard.py``): inside the identified
         temperatures or where the OCV resolves the SoC outside them
-        (:meth:`_resolves_outside`), the NIS average below its gate, no persistent error (item
-        11), one reading per
-        ``follow_tau_s``; the count never gets surer than the floor (:meth:`_model_soc_var`)
-        from it (the model's error is not white)."""
+        (:meth:`_resolves_outside`), the NIS average below its gate, no persistent error
+        (item 11), one reading per ``follow_tau_s``; the count never gets surer than the floor
+        (:meth:`_model_soc_var`) from it (the model's error is not white)."""
         if (
             dt_s <= 0.0
             or self.inflating
