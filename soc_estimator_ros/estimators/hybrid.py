@@ -577,13 +577,20 @@ class Hybrid(T2rcUkf):
             self._flat_innov_v = self._flat_r_v2 = 0.0
         return flat
 
+    def _window_weight(self, dt_s: float) -> float:
+        """A sample's weight in items 9's and 11's averages of the innovation over
+        ``nis_tau_s``, ``1 - exp(-dt / nis_tau_s)``; 1 for a first sample (no ``dt``), so an
+        average starts at it. The white part of such an average has the stationary variance
+        ``w / (2 - w)`` of a sample's."""
+        return 1.0 - math.exp(-dt_s / self.tuning["nis_tau_s"]) if dt_s > 0.0 else 1.0
+
     def _contradicts_flat_estimate(self, innovation_v: float) -> bool:
         """Item 9's way out: ``innovation_v`` (the reading less the prediction at the mean,
         with the bias), averaged over ``nis_tau_s``, beyond ``ocv_contradiction_sigma`` times
         its std if the estimate held."""
         t = self.tuning
         dt = getattr(self, "_dt_last", 0.0)
-        w = 1.0 - math.exp(-dt / t["nis_tau_s"]) if dt > 0.0 else 1.0
+        w = self._window_weight(dt)
         r = float(t["ocv_std_v"]) ** 2  # the rest reading's, averaged down
         self._flat_innov_v += w * (innovation_v - self._flat_innov_v)
         self._flat_r_v2 += w * (r - self._flat_r_v2)
@@ -615,7 +622,7 @@ class Hybrid(T2rcUkf):
             self._persistent_s = 0.0
             self.persistent_error = False
             return
-        w = 1.0 - math.exp(-dt_s / self.tuning["nis_tau_s"]) if dt_s > 0.0 else 1.0
+        w = self._window_weight(dt_s)
         hph = max(float(self.kf.S[0, 0]) - float(self._r[0, 0]), 0.0)
         self.innovation_avg_v += w * (innovation_v - self.innovation_avg_v)
         self._avg_hph_v2 += w * (hph - self._avg_hph_v2)
