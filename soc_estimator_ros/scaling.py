@@ -105,6 +105,7 @@ TUNING_UNITS: dict[str, Unit | str] = {
     # item 9: SoC fractions and a count of std
     "ocv_soc_resolution_max": NONE,
     "ocv_contradiction_sigma": NONE,
+    "flat_load_soc_std_min": NONE,
     # item 11: a count of std
     "persistent_innovation_sigma": NONE,
 }

@@ -128,12 +128,18 @@ papers report:
    estimate: the innovation at the mean, averaged over ``nis_tau_s``, beyond
    ``ocv_contradiction_sigma`` times its std if the estimate held (the model's error and the
    averaged white noise); a rest of a pack whose SoC is off the plateau is then read as
-   before. Under load the item does not gate (tried: it kept a wide start prior from reaching
-   a knee, but kept the std wide for the first steep reading through a cold model too:
-   docs/accuracy.md). SLA and the NCR18650PF are nowhere flat by the rule (their slopes read
-   their model errors as 1.0 and 1.6 points at most): their filters are the ones without it,
-   to the bit. ``ocv_soc_resolution_max: 0`` turns it off. Chosen on the LFP tuning half of the
-   corpus and the bundled field runs.
+   before. A load reading there is gated the same way while the UKF's SoC std exceeds
+   ``flat_load_soc_std_min`` (0.03), its white part the load's ``R``: a start given wide on
+   the plateau otherwise took the model's error under load as SoC (``lfp_tuning_1026``, an
+   unrested start at 65.7 % with std 0.1 under 9.4 A: 6 points low within 3 minutes, the
+   sigma points, 10 points either side, reaching the knees and lending the reading their
+   slope); a start given sure still reads the load, item 11 taking what persists as the
+   model's error (the std-0.015 runs are unchanged to the digit). SLA and the NCR18650PF are
+   nowhere flat by the rule (their slopes read their model errors as 1.0 and 1.6 points at
+   most): their filters are the ones without it, to the bit. ``ocv_soc_resolution_max: 0``
+   turns it off, ``flat_load_soc_std_min: 0`` its load half. Chosen on the LFP tuning half of
+   the corpus and the bundled field runs (docs/accuracy.md, "Where the OCV is flat" and
+   "under load").
 10. **No voltage reading while the OCV's branch is unknown.** With a battery file's OCV
    hysteresis (``models/hysteresis.py``) the tracker takes ``gap_v b`` out of the voltage and,
    where ``b`` is uncertain (a start without a saved state), passes its variance
@@ -243,6 +249,9 @@ class Hybrid(T2rcUkf):
         # 12.5 / 7.3 mV).
         "ocv_soc_resolution_max": 0.06,  # SoC: bias_std_v over the OCV slope above this: flat
         "ocv_contradiction_sigma": 2.0,  # mean innovation beyond this many std: read
+        # SoC std: a load reading where the OCV is flat is gated too while the UKF's SoC std
+        # exceeds this (item 9; chosen on the LFP tuning half over 0.02 and 0.05); 0: rests only
+        "flat_load_soc_std_min": 0.03,
         # Item 11: a load reading's innovation averaged over nis_tau_s beyond this many std of
         # what the filter's own uncertainty and the white noise explain is the model's error:
         # the voltage then counts as one reading per nis_tau_s. A 3-sigma test, not fitted
@@ -481,6 +490,7 @@ class Hybrid(T2rcUkf):
         self.ocv_corrections = 0
         self._flat_innov_v = 0.0  # item 9: the innovation at the mean, averaged
         self._flat_r_v2 = 0.0  # and the white measurement variance, averaged alike
+        self._flat_white_v2 = 0.0  # this flat reading's white measurement variance
         # Item 11: the load readings' innovation, the filter's share of its variance and the
         # white measurement variance, each averaged over nis_tau_s.
         self.innovation_avg_v = 0.0
@@ -520,18 +530,26 @@ class Hybrid(T2rcUkf):
         step is seen before the low-pass)."""
         return self.rest_s >= self.tuning["rest_min_s"] and abs(current_a) <= self._rest_band_a
 
+    def _white_variance(self, current_a: float, at_rest: bool) -> float:
+        """A reading's white measurement variance: ``ocv_std_v^2`` at rest (item 3), else ``r +
+        (r_per_a I)^2`` (item 2); grown outside the identified temperatures (item 6, at rest
+        too: the OCV's temperature shift is not known there either)."""
+        t = self.tuning
+        if at_rest:
+            var = float(t["ocv_std_v"]) ** 2
+        else:
+            var = float(t["r"]) + (t["r_per_a"] * current_a) ** 2
+        d = self.model.extrapolation_c(self._temp_c)
+        if d != 0.0:
+            var *= self._noise_growth(d)
+        return var
+
     def _measurement_variance(self, current_a: float) -> float:
         at_rest = self._rest_reading(current_a)
         self.at_rest = at_rest
         if at_rest:
             self.ocv_corrections += 1
-            var = float(self.tuning["ocv_std_v"]) ** 2
-        else:
-            var = float(self.tuning["r"]) + (self.tuning["r_per_a"] * current_a) ** 2
-        # Item 6, at rest too: the OCV's temperature shift is not known there either.
-        d = self.model.extrapolation_c(self._temp_c)
-        if d != 0.0:
-            var *= self._noise_growth(d)
+        var = self._white_variance(current_a, at_rest)
         self._white_r_v2 = var
         if self.persistent_error and not at_rest:
             dt = getattr(self, "_dt_last", 0.0)
@@ -562,17 +580,22 @@ class Hybrid(T2rcUkf):
         charge_gate_a = min(float(t["update_charge_c_rate_max"]), gate_c) * self.capacity_ah
         return -current_a > max(charge_gate_a, self._rest_band_a)
 
-    def _flat_rest_reading(self, current_a: float) -> bool:
-        """Item 9: a rest reading where the OCV is flat at the SoC estimate (the model's error
-        ``bias_std_v`` reads as more than ``ocv_soc_resolution_max`` of SoC there). Anything
-        else starts the contradiction's average again."""
+    def _flat_reading(self, current_a: float) -> bool:
+        """Item 9: a reading where the OCV is flat at the SoC estimate (the model's error
+        ``bias_std_v`` reads as more than ``ocv_soc_resolution_max`` of SoC there): a rest
+        reading, or a load reading while the UKF's SoC std exceeds ``flat_load_soc_std_min``.
+        Anything else starts the contradiction's average again."""
         t = self.tuning
         limit = float(t["ocv_soc_resolution_max"])
-        flat = (
-            limit > 0.0
-            and self._rest_reading(current_a)
-            and self._hidden_soc(float(t["bias_std_v"])) > limit
-        )
+        flat = limit > 0.0 and self._hidden_soc(float(t["bias_std_v"])) > limit
+        if flat:
+            at_rest = self._rest_reading(current_a)
+            if not at_rest:
+                std_min = float(t["flat_load_soc_std_min"])
+                i = self.soc_index
+                flat = std_min > 0.0 and float(self.kf.P[i, i]) > std_min * std_min
+            if flat:
+                self._flat_white_v2 = self._white_variance(current_a, at_rest)
         if not flat:
             self._flat_innov_v = self._flat_r_v2 = 0.0
         return flat
@@ -591,9 +614,8 @@ class Hybrid(T2rcUkf):
         t = self.tuning
         dt = getattr(self, "_dt_last", 0.0)
         w = self._window_weight(dt)
-        r = float(t["ocv_std_v"]) ** 2  # the rest reading's, averaged down
         self._flat_innov_v += w * (innovation_v - self._flat_innov_v)
-        self._flat_r_v2 += w * (r - self._flat_r_v2)
+        self._flat_r_v2 += w * (self._flat_white_v2 - self._flat_r_v2)
         # Its std if the estimate held: the model's persistent error and the white part's
         # exponential average (stationary variance w / (2 - w) of it). A SoC elsewhere, where
         # the OCV differs, adds what this test is for.
@@ -655,7 +677,7 @@ class Hybrid(T2rcUkf):
     def _update(self, current_a: float, voltage_v: float, temp_c) -> tuple[float, float, float]:
         self._temp_c = temp_c
         gated = self._outside_update_currents(current_a) or self._branch_unknown()
-        if gated or self._flat_rest_reading(current_a):
+        if gated or self._flat_reading(current_a):
             # The first sample too: a start under load must not pull a wide prior P0.
             self.at_rest = False
             v_pred = float(self._hx(self.kf.x[np.newaxis, :], current_a, temp_c)[0, 0])
