@@ -587,13 +587,15 @@ class Hybrid(T2rcUkf):
         Anything else starts the contradiction's average again."""
         t = self.tuning
         limit = float(t["ocv_soc_resolution_max"])
-        flat = limit > 0.0 and self._hidden_soc(float(t["bias_std_v"])) > limit
+        flat = limit > 0.0
         if flat:
             at_rest = self._rest_reading(current_a)
             if not at_rest:
                 std_min = float(t["flat_load_soc_std_min"])
                 i = self.soc_index
                 flat = std_min > 0.0 and float(self.kf.P[i, i]) > std_min * std_min
+            # the slope last: a sure filter's load readings (most of them) need no lookup
+            flat = flat and self._hidden_soc(float(t["bias_std_v"])) > limit
             if flat:
                 self._flat_white_v2 = self._white_variance(current_a, at_rest)
         if not flat:
