@@ -490,14 +490,15 @@ class Hybrid(T2rcUkf):
         self.ocv_corrections = 0
         self._flat_innov_v = 0.0  # item 9: the innovation at the mean, averaged
         self._flat_r_v2 = 0.0  # and the white measurement variance, averaged alike
-        self._flat_white_v2 = 0.0  # this flat reading's white measurement variance
         # Item 11: the load readings' innovation, the filter's share of its variance and the
         # white measurement variance, each averaged over nis_tau_s.
         self.innovation_avg_v = 0.0
         self._avg_hph_v2 = 0.0
         self._avg_r_v2 = 0.0
         self._avg_reach_v = 0.0
-        self._white_r_v2 = 0.0  # this sample's R before item 11 scales it
+        # This sample's white measurement variance (before item 11 scales it): item 9's test
+        # reads it on a flat sample, item 11's on a load reading.
+        self._white_r_v2 = 0.0
         self.persistent_error = False
         self._persistent_s = 0.0  # how long the present episode has been flagged
 
@@ -597,16 +598,17 @@ class Hybrid(T2rcUkf):
             # the slope last: a sure filter's load readings (most of them) need no lookup
             flat = flat and self._hidden_soc(float(t["bias_std_v"])) > limit
             if flat:
-                self._flat_white_v2 = self._white_variance(current_a, at_rest)
+                self._white_r_v2 = self._white_variance(current_a, at_rest)
         if not flat:
             self._flat_innov_v = self._flat_r_v2 = 0.0
         return flat
 
     def _window_weight(self, dt_s: float) -> float:
-        """A sample's weight in items 9's and 11's averages of the innovation over
-        ``nis_tau_s``, ``1 - exp(-dt / nis_tau_s)``; 1 for a first sample (no ``dt``), so an
-        average starts at it. The white part of such an average has the stationary variance
-        ``w / (2 - w)`` of a sample's."""
+        """A sample's weight in the averages over ``nis_tau_s`` (item 4's NIS, items 9's and
+        11's innovations), ``1 - exp(-dt / nis_tau_s)``; 1 for a first sample (no ``dt``), so
+        an average starts at it (the NIS average, which starts at its prior, takes none). The
+        white part of such an average has the stationary variance ``w / (2 - w)`` of a
+        sample's."""
         return 1.0 - math.exp(-dt_s / self.tuning["nis_tau_s"]) if dt_s > 0.0 else 1.0
 
     def _contradicts_flat_estimate(self, innovation_v: float) -> bool:
@@ -617,7 +619,7 @@ class Hybrid(T2rcUkf):
         dt = getattr(self, "_dt_last", 0.0)
         w = self._window_weight(dt)
         self._flat_innov_v += w * (innovation_v - self._flat_innov_v)
-        self._flat_r_v2 += w * (self._flat_white_v2 - self._flat_r_v2)
+        self._flat_r_v2 += w * (self._white_r_v2 - self._flat_r_v2)
         # Its std if the estimate held: the model's persistent error and the white part's
         # exponential average (stationary variance w / (2 - w) of it). A SoC elsewhere, where
         # the OCV differs, adds what this test is for.
@@ -694,6 +696,7 @@ class Hybrid(T2rcUkf):
             dt = getattr(self, "_dt_last", 0.0)
             self._track_persistence(innov, dt)
             self._follow_trusted_filter(dt, temp_c)
-            w = 1.0 - math.exp(-dt / self.tuning["nis_tau_s"]) if dt > 0.0 else 0.0
+            # 0 at a first sample: the NIS average starts at its prior, 1
+            w = self._window_weight(dt) if dt > 0.0 else 0.0
             self.nis_avg += w * (min(nis, 100.0) - self.nis_avg)
         return v_pred, innov, nis
