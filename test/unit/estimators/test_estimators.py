@@ -465,25 +465,45 @@ def test_hybrid_reads_a_rest_that_contradicts_a_flat_estimate() -> None:
     assert abs(err) < 0.005  # measured 0.27 point after 300 s
 
 
-def lfp_load(start_soc: float, true_soc: float, error_v: float, load_half: bool):
-    """The LFP file's hybrid from ``start_soc`` with std 0.1 on five minutes of 2 A at 10 Hz
-    from a pack rested at ``true_soc``, its voltage ``error_v`` off the model (a model error
-    under load), with item 9's load half on (the default, ``flat_load_soc_std_min`` 0.03) or
-    off. The truth is the estimator's own model (a unit test of the filter, not an accuracy
-    measurement). Returns the SoC error at the end and the samples read."""
+def lfp_constant_load(
+    start_soc: float,
+    start_std: float,
+    true_soc: float,
+    current_a: float,
+    error_v: float,
+    n: int,
+    item_off: str | None = None,
+) -> tuple[Hybrid, Estimate, float, int, int]:
+    """The LFP file's hybrid from ``start_soc`` with std ``start_std`` on ``n`` samples at
+    10 Hz of ``current_a`` from a pack rested at ``true_soc``, its voltage ``error_v`` off the
+    model (a model error under load), with the tuning key ``item_off`` (an item's switch) at 0
+    or none. The truth is the estimator's own model (a unit test of the filter, not an
+    accuracy measurement). Returns the estimator, its last estimate, the true SoC at it, the
+    samples read and the samples item 11 flagged."""
     model = LFP.thevenin_model()
     x = model.rested_state(true_soc)
     tuning = dict(LFP.filters["hybrid"])
-    if not load_half:
-        tuning["flat_load_soc_std_min"] = 0.0
-    est = make_estimator("hybrid", LFP, start_soc, 0.1, tuning=tuning)
-    read = 0
-    for k in range(3000):
-        out = est.step(0.1 * k, 2.0, model.terminal_voltage(x, 2.0) + error_v)
+    if item_off is not None:
+        tuning[item_off] = 0.0
+    est = make_estimator("hybrid", LFP, start_soc, start_std, tuning=tuning)
+    assert isinstance(est, Hybrid)
+    read = flagged = 0
+    for k in range(n):
+        out = est.step(0.1 * k, current_a, model.terminal_voltage(x, current_a) + error_v)
         read += out.updated
-        err = out.soc - float(x[0])
-        x = model.step(x, 2.0, 0.1)
-    return err, read
+        flagged += est.persistent_error
+        truth = float(x[0])
+        x = model.step(x, current_a, 0.1)
+    return est, out, truth, read, flagged
+
+
+def lfp_load(start_soc: float, true_soc: float, error_v: float, load_half: bool):
+    """:func:`lfp_constant_load` from ``start_soc`` with std 0.1, five minutes of 2 A, item 9's
+    load half on (the default, ``flat_load_soc_std_min`` 0.03) or off. Returns the SoC error at
+    the end and the samples read."""
+    off = None if load_half else "flat_load_soc_std_min"
+    _, out, truth, read, _ = lfp_constant_load(start_soc, 0.1, true_soc, 2.0, error_v, 3000, off)
+    return out.soc - truth, read
 
 
 def test_hybrid_reads_no_load_on_a_flat_ocv_while_the_soc_is_wide() -> None:
@@ -530,24 +550,15 @@ DELTA_R_OHM = -0.018
 
 
 def unrested_load(error_v: float, item_11: bool) -> tuple[float, float, float, Estimate]:
-    """The LFP file's hybrid from the true SoC 0.42 with std 0.015 (a resumed state), three
-    minutes at 3 A and 10 Hz, the voltage ``error_v`` off the model (a pack under load carrying
-    a polarization the model, started at rest, lacks: ``lfp_validation_1033`` started 326 mV
-    below the file's model). The truth is the estimator's own model (a unit test of the filter,
-    not an accuracy measurement). Returns the UKF's and the count's SoC errors, the share of
-    the samples item 11 flagged, and the last estimate."""
-    model = LFP.thevenin_model()
-    x = model.rested_state(0.42)
-    tuning = {**LFP.filters["hybrid"]}
-    if not item_11:
-        tuning["persistent_innovation_sigma"] = 0.0
-    est = make_estimator("hybrid", LFP, 0.42, 0.015, tuning=tuning)
-    n, flagged = 1800, 0
-    for k in range(n):
-        out = est.step(0.1 * k, 3.0, model.terminal_voltage(x, 3.0) + error_v)
-        x = model.step(x, 3.0, 0.1)
-        flagged += est.persistent_error
-    return float(est.x[0]) - float(x[0]), est.count.soc - float(x[0]), flagged / n, out
+    """:func:`lfp_constant_load` from the true SoC 0.42 with std 0.015 (a resumed state), three
+    minutes at 3 A, the voltage ``error_v`` off the model (a pack under load carrying a
+    polarization the model, started at rest, lacks: ``lfp_validation_1033`` started 326 mV
+    below the file's model), item 11 on or off. Returns the UKF's and the count's SoC errors,
+    the share of the samples item 11 flagged, and the last estimate."""
+    n = 1800
+    off = None if item_11 else "persistent_innovation_sigma"
+    est, out, truth, _, flagged = lfp_constant_load(0.42, 0.015, 0.42, 3.0, error_v, n, off)
+    return float(est.x[0]) - truth, est.count.soc - truth, flagged / n, out
 
 
 def test_hybrid_reads_a_persistent_load_error_as_the_models() -> None:
