@@ -11,6 +11,7 @@ from scipy.stats import norm
 
 from soc_estimator_ros.estimators import make_estimator
 from soc_estimator_ros.estimators.guard import ChargeCount, CountErrorModel, guard
+from soc_estimator_ros.estimators.hybrid import Hybrid
 from soc_estimator_ros.params import load_battery_params
 
 SLA = load_battery_params(REPO_ROOT / "config" / "sla_12v5ah.yaml")
@@ -108,11 +109,14 @@ LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
 
 @pytest.mark.parametrize("soc", [0.1, 0.38, 0.65])
 def test_the_filters_soc_floor_is_what_the_models_error_hides(soc: float) -> None:
-    """Item 7's floor of the UKF's SoC variance, on the LFP file at a steep SoC (0.1: the
-    model_soc_std), a sloped one (0.38: bias_std_v over the OCV slope, 1.7 %) and the flat plateau
-    (0.65: flat_soc_std_max); the guard reads the UKF's variance no smaller (exact: the same
-    max over the same floats)."""
-    est = make_estimator("hybrid", LFP, soc, 1e-4)
+    """Item 7's floor of the UKF's SoC variance, on the LFP file's OCV and model error with the
+    code's default ``model_soc_std`` (0.01), at a steep SoC (0.1: the model_soc_std), a sloped
+    one (0.38: bias_std_v over the OCV slope, 1.7 %) and the flat plateau (0.65:
+    flat_soc_std_max); the guard reads the UKF's variance no smaller (exact: the same max over
+    the same floats). The file's own ``model_soc_std`` (0.025) lies above ``flat_soc_std_max``
+    (0.02), so with it the floor is ``model_soc_std`` at all three."""
+    default = {**LFP.filters["hybrid"], "model_soc_std": Hybrid.default_tuning["model_soc_std"]}
+    est = make_estimator("hybrid", LFP, soc, 1e-4, tuning=default)
     t = est.tuning
     hidden = t["bias_std_v"] / abs(est.model.ocv.slope(soc))
     expected = max(t["model_soc_std"], min(hidden, t["flat_soc_std_max"]))
@@ -125,9 +129,11 @@ def test_the_filters_soc_floor_is_what_the_models_error_hides(soc: float) -> Non
     assert g.soc_var == pytest.approx(
         g.model_weight * expected**2 + (1 - g.model_weight) * 1e-8, rel=1e-9
     )
-    tuning = {**LFP.filters["hybrid"], "flat_soc_std_max": 0.0}  # the file's, the floor off
+    tuning = {**default, "flat_soc_std_max": 0.0}  # the flat part of the floor off
     off = make_estimator("hybrid", LFP, soc, 1e-4, tuning=tuning)
     assert off._model_soc_var() == t["model_soc_std"] ** 2
+    as_filed = make_estimator("hybrid", LFP, soc, 1e-4)
+    assert as_filed._model_soc_var() == LFP.filters["hybrid"]["model_soc_std"] ** 2
 
 
 def test_outside_the_envelope_a_knee_still_corrects_the_count() -> None:
