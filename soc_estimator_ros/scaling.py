@@ -96,6 +96,7 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "capacity_std_frac": NONE,
     "model_prior": NONE,
     "follow_tau_s": NONE,
+    "follow_sure_tau_s": NONE,
     "model_soc_std": NONE,
     "flat_soc_std_max": NONE,  # SoC
     "outside_follow_soc_max": NONE,  # SoC

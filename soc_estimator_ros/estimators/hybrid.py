@@ -86,15 +86,18 @@ papers report:
    chosen on the 10 degC Panasonic cycles over ``1 / (1 + (d / scale)^2)``, docs/accuracy.md
    "Do no harm"); ``model_prior: 1`` turns
    the guard off (the UKF's own SoC and variance are published). A rest OCV reading inside
-   the identified temperatures, a reset and a CC-CV end re-anchor the count; so does the
-   UKF's own SoC while it is trusted (``follow_tau_s``: ``guard.py``): inside the identified
+   the identified temperatures, a reset and a CC-CV end re-anchor the count; the UKF's own
+   SoC moves it while it is trusted (``follow_tau_s``, its budget's growth kept: ``guard.py``):
+   inside the identified
    temperatures, and outside them where the OCV still resolves the SoC to
    ``outside_follow_soc_max`` under the model's error grown as item 6 grows the noise (a
    wrong start at -3 degC on LFP's top knee stayed 30 points off with the count, the UKF
    beside it right within a minute). Both read the UKF's SoC variance no smaller than the
    SoC the model's persistent error hides (the UKF's ``P`` takes the error as white):
    ``model_soc_std``, and where the OCV is flat ``bias_std_v / |dOCV/dsoc|`` up to
-   ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`).
+   ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`). Where the model holds, the published
+   SoC is the UKF and the count fused by those variances (``guard.py``), so where the UKF is
+   no surer than the count its move counts by its share.
    ``x`` and ``p`` stay the UKF's; ``soc`` and ``soc_var`` are the published (guarded) ones.
 8. **A series-resistance error state.** A pack of the same kind is not the pack the file was
    identified on: the corpus' packs spread +-15 % in resistance (bags/README.md), and the
@@ -226,6 +229,9 @@ class Hybrid(T2rcUkf):
         "capacity_std_frac": 0.03,
         "model_prior": 0.9,  # probability that the model holds, inside the identified range
         "follow_tau_s": 60.0,  # s: one independent reading of the trusted filter per this
+        # ... once the count is as sure as the filter's floor (docs/accuracy.md "The guard
+        # fused"; chosen on the LFP tuning half)
+        "follow_sure_tau_s": 1800.0,
         # SoC: what a persistent model error costs in SoC and the UKF's P leaves out (it takes
         # the model's error as white): the floor of the UKF's SoC variance in the guard, and of
         # the count's when it follows the filter.
@@ -419,7 +425,8 @@ class Hybrid(T2rcUkf):
         The reading is the measured voltage less what the model adds to the OCV curve at the
         present state (the branches' remaining relaxation, the temperature offset); it updates
         the count through the OCV curve linearized at the count's own SoC, noise ``ocv_std_v``
-        (an inversion of the curve instead moved the count 7 points on LFP's plateau)."""
+        (an inversion of the curve instead moved the count 7 points on LFP's plateau), the
+        count's variance no smaller than the floor (:meth:`_model_soc_var`)."""
         if self._rest_fused or self.model.extrapolation_c(temp_c) != 0.0:
             return
         self._rest_fused = True
@@ -427,7 +434,9 @@ class Hybrid(T2rcUkf):
         c = self.count.soc
         innovation = ocv_v - self.model.ocv.ocv(c)
         var_v2 = float(self.tuning["ocv_std_v"]) ** 2 + self.voltage_offset_var_v2
-        self.count.fuse(innovation, self.model.ocv.slope(c), var_v2)
+        # No surer than the SoC the model's persistent error hides: the reading is the model's
+        # OCV, and the published SoC leans on the count where it is surer than the UKF.
+        self.count.fuse(innovation, self.model.ocv.slope(c), var_v2, self._model_soc_var())
 
     def _resolves_outside(self, temp_c) -> bool:
         """Inside the identified temperatures, True; outside, whether the OCV at the UKF's SoC
@@ -445,8 +454,10 @@ class Hybrid(T2rcUkf):
         """The trusted filter's SoC into the count (``guard.py``): inside the identified
         temperatures or where the OCV resolves the SoC outside them
         (:meth:`_resolves_outside`), the NIS average below its gate, no persistent error
-        (item 11), one reading per ``follow_tau_s``; the count never gets surer than the floor
-        (:meth:`_model_soc_var`) from it (the model's error is not white)."""
+        (item 11), one reading per ``follow_tau_s`` while the count is less sure than the
+        filter, per ``follow_sure_tau_s`` once it is as sure; the count never gets surer than
+        the filter's variance, at least the floor (:meth:`_model_soc_var`), from it (the
+        model's error is not white)."""
         if (
             dt_s <= 0.0
             or self.inflating
@@ -458,9 +469,14 @@ class Hybrid(T2rcUkf):
         i = self.soc_index
         floor_var = self._model_soc_var()
         u_var = max(float(self.kf.P[i, i]), floor_var)
-        tau_s = float(t["follow_tau_s"])
+        # A count less sure than the filter takes it at follow_tau_s (a wrong start the filter
+        # corrects); one as sure (the floor) only at follow_sure_tau_s: the filter's error
+        # persists (docs/accuracy.md "The guard fused").
+        sure = self.count.var <= u_var
+        tau_s = float(t["follow_sure_tau_s" if sure else "follow_tau_s"])
         r = u_var * tau_s / min(dt_s, tau_s)  # a gap longer than tau is still one reading
-        self.count.fuse(float(self.kf.x[i]) - self.count.soc, 1.0, r, floor_var)
+        # never surer than the filter it reads (its error persists), nor than the floor
+        self.count.fuse(float(self.kf.x[i]) - self.count.soc, 1.0, r, u_var, reanchor=False)
 
     def _init_state(self, soc: float, soc_var: float) -> None:
         names = Hybrid.state_names

@@ -187,7 +187,7 @@ def test_soc_stays_bounded_and_divergence_shows(name: str) -> None:
     """A voltage far above the OCV range pushes filters past 100 %: the SoC is clipped, the
     clip is counted and the variance grows, instead of the error being hidden. The hybrid
     first reads it as its model's persistent error (item 11, flagged in its diagnostics) for
-    ``bias_tau_s`` (10 minutes), then as the others do."""
+    ``bias_tau_s`` (10 minutes), then as the others do, and publishes through its guard."""
     est = make_estimator(name, SLA, 0.98, 0.05)
     out = None
     flagged = []
@@ -200,7 +200,16 @@ def test_soc_stays_bounded_and_divergence_shows(name: str) -> None:
         assert all(flagged[10:5990]) and not any(flagged[6010:])
     assert 0.0 <= out.soc <= 1.0
     assert est.clip_count > 0
-    if name != "coulomb":
+    if name == "hybrid":
+        # Its UKF diverges as the others do (an uninformative SoC std); the guard publishes
+        # the count fused with it by their variances, so the count's SoC and std, which the
+        # absurd voltage cannot move: never surer than the count, and within 10 % of it (the
+        # UKF's share and the mixture's disagreement add 5.7 % here).
+        assert math.sqrt(est.p[0, 0]) > 0.25
+        count_std = math.sqrt(est.count.var)
+        assert count_std <= out.soc_std < 1.1 * count_std
+        assert out.soc == pytest.approx(est.count.soc, abs=1e-3)
+    elif name != "coulomb":
         # Shown either by an uninformative SoC std (normal: a few %) or a screaming NIS.
         assert out.soc_std > 0.25 or out.nis > 9.0
         # Clipping stops growing the variance at MAX_SOC_VAR = 1 ("no information"); process
@@ -563,12 +572,14 @@ def unrested_load(error_v: float, item_11: bool) -> tuple[float, float, float, E
 
 def test_hybrid_reads_a_persistent_load_error_as_the_models() -> None:
     """Item 11: 300 mV under the model for three minutes. Read sample by sample the UKF takes
-    it as SoC (measured 8.7 points low, the count following it); with the item the averaged
+    it as SoC (measured 8.7 points low); the count, as sure as the start (std 0.015, below the
+    file's floor 0.025), follows it only at ``follow_sure_tau_s`` (measured 0.28 point; it
+    followed in full at ``follow_tau_s`` before the guard's fusion). With the item the averaged
     innovation is beyond 3 std of what the filter's P and the white noise explain from the
     first seconds on, the minute's samples count as one reading, and the count does not follow
     (measured: UKF 0.2 point low, the count 0.00)."""
     ukf_off, count_off, flagged_off, _ = unrested_load(-0.3, item_11=False)
-    assert flagged_off == 0.0 and ukf_off < -0.05 and count_off < -0.05
+    assert flagged_off == 0.0 and ukf_off < -0.05 and -0.01 < count_off < 0.0
     ukf, count, flagged, _ = unrested_load(-0.3, item_11=True)
     assert flagged > 0.99  # measured 99.9 %: every sample after the first few
     assert abs(ukf) < 0.01 and abs(count) < 0.001  # bounds: 1 point, 0.1 point

@@ -26,19 +26,29 @@ def test_guard_is_the_mixture_of_the_two_hypotheses(d: float, prior: float) -> N
     right = prior * norm.pdf(d, 0.0, math.sqrt(u_var + c_var))
     w = right / (right + (1.0 - prior) * 0.5)
     assert out.model_weight == pytest.approx(w, rel=1e-12)
+    # Under "the model holds" the two readings fused by their variances, at the worst
+    # correlation (the variance of a weighted sum of two errors correlated by 1).
+    a = c_var / (u_var + c_var)
+    f, f_std = c + a * d, (1 - a) * math.sqrt(c_var) + a * math.sqrt(u_var)
     # The published moments are the mixture's, integrated on a grid: 2e-5 wide over +-12 sigma
     # of both components, so the Riemann sums are exact to about 1e-9 (relative 1e-6 asked).
     x = np.arange(c - 0.5, c + d + 0.5, 2e-5)
-    pdf = w * norm.pdf(x, c + d, math.sqrt(u_var)) + (1 - w) * norm.pdf(x, c, math.sqrt(c_var))
+    pdf = w * norm.pdf(x, f, f_std) + (1 - w) * norm.pdf(x, c, math.sqrt(c_var))
     pdf /= pdf.sum()
     mean = float(np.sum(x * pdf))
     assert out.soc == pytest.approx(mean, rel=1e-6)
     assert out.soc_var == pytest.approx(float(np.sum((x - mean) ** 2 * pdf)), rel=1e-6)
 
 
-def test_guard_follows_an_agreeing_filter_and_drops_a_stray_one() -> None:
-    agree = guard(0.601, 1e-4, 0.6, 1e-4, 0.9)
-    assert agree.model_weight > 0.99 and abs(agree.soc - 0.601) < 1e-4
+def test_guard_fuses_an_agreeing_filter_and_drops_a_stray_one() -> None:
+    agree = guard(0.601, 1e-4, 0.6, 1e-4, 0.9)  # as sure as the count: half its move
+    assert agree.model_weight > 0.99 and abs(agree.soc - 0.6005) < 1e-5
+    assert agree.soc_var == pytest.approx(1e-4, rel=1e-3)  # no surer than either
+    # A filter surer than the count carries the SoC, one less sure moves it by its share.
+    assert guard(0.62, 1e-6, 0.6, 1e-4, 0.9).soc == pytest.approx(0.62, abs=5e-4)
+    assert guard(0.62, 0.025**2, 0.6, 0.015**2, 0.9).soc == pytest.approx(
+        0.6 + 0.02 * 0.015**2 / (0.015**2 + 0.025**2), abs=1e-3
+    )
     stray = guard(0.75, 1e-4, 0.6, 1e-4, 0.9)  # 10.6 sigma apart
     assert stray.model_weight < 1e-12 and stray.soc == pytest.approx(0.6, abs=1e-12)
     assert stray.soc_var == pytest.approx(1e-4, rel=1e-9)  # the count's, as it is published
@@ -73,6 +83,32 @@ def test_count_fuse_is_a_scalar_kalman_update_and_clips() -> None:
     count.anchor(0.999, 1e-4)
     count.step(-5.0, 3600.0)  # an hour of 1 C charge from full: clipped, the excess is variance
     assert count.soc == 1.0 and count.var > 0.9
+
+
+def test_a_reading_of_the_filter_keeps_the_counts_growth() -> None:
+    """``reanchor=False`` (the filter's SoC, whose error persists): the count moves, the
+    reduction comes off the anchor's variance, and the sensor's and capacity's growth since the
+    anchor goes on, where a re-anchor would restart it from nothing."""
+    count = ChargeCount(ERRORS, capacity_ah=5.0, efficiency_charge=1.0)
+    count.anchor(0.8, 0.015**2)
+    for _ in range(1800):
+        count.step(5.0, 1.0)  # half an hour at 1 C: 0.5 moved
+    growth = count.var - 0.015**2
+    count.fuse(0.01, 1.0, 1.0, reanchor=False)  # a weak reading
+    k = (0.015**2 + growth) / (0.015**2 + growth + 1.0)
+    assert count.soc == pytest.approx(0.3 + k * 0.01, rel=1e-9)
+    assert count.var == pytest.approx((1 - k) * (0.015**2 + growth), rel=1e-9)
+    assert count.var - count.var_anchor == pytest.approx(growth, rel=1e-9)  # the growth kept
+    for _ in range(360):
+        count.step(5.0, 1.0)  # 0.1 more: the capacity's and gain's share grows with 0.6 moved
+    offset = 0.02 * 2160.0 / 3600.0 / 5.0
+    assert count.var == pytest.approx(
+        (1 - k) * (0.015**2 + growth) - growth + offset**2 + (0.005**2 + 0.03**2) * 0.6**2,
+        rel=1e-6,
+    )
+    # A reading that takes more than the anchor's variance re-anchors.
+    count.fuse(0.0, 1.0, 1e-6, reanchor=False)
+    assert count.var_anchor == pytest.approx(count.var) and count.soc_anchor == count.soc
 
 
 def feed(est, minutes: float, current_a: float, voltage_v: float, temp_c: float) -> None:
@@ -124,10 +160,12 @@ def test_the_filters_soc_floor_is_what_the_models_error_hides(soc: float) -> Non
     which = {0.1: t["model_soc_std"], 0.38: hidden, 0.65: t["flat_soc_std_max"]}[soc]
     assert expected == which  # each SoC is the case it is named for
     g = est.guarded()
-    # The start's P (1e-8) is below the floor: the mixture of the UKF at the floor and the
-    # count at the start's variance, d = 0 (no disagreement).
+    # The start's P (1e-8) is below the floor: the mixture of the UKF at the floor fused with
+    # the count at the start's variance, and the count, d = 0 (no disagreement).
+    a = 1e-8 / (expected**2 + 1e-8)
+    fused_var = ((1 - a) * 1e-4 + a * expected) ** 2
     assert g.soc_var == pytest.approx(
-        g.model_weight * expected**2 + (1 - g.model_weight) * 1e-8, rel=1e-9
+        g.model_weight * fused_var + (1 - g.model_weight) * 1e-8, rel=1e-9
     )
     tuning = {**default, "flat_soc_std_max": 0.0}  # the flat part of the floor off
     off = make_estimator("hybrid", LFP, soc, 1e-4, tuning=tuning)

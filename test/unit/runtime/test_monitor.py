@@ -100,12 +100,15 @@ def test_full_recalibrates_the_soc_and_says_so():
     assert est.soc == 1.0
     # The hybrid publishes the guard's mixture (estimators/guard.py): its UKF and its count both
     # recalibrated to 1.0 with FULL_SOC_STD, the UKF's variance floored at the file's
-    # model_soc_std (the model's persistent error), so d = 0 and the variance is
-    # w floor^2 + (1 - w) FULL_SOC_STD^2 with the guard's weight w (rounding only).
+    # model_soc_std (the model's persistent error), so d = 0, the two fused at the worst
+    # correlation have the std (1 - a) FULL_SOC_STD + a floor, a the UKF's share, and the
+    # variance is w fused^2 + (1 - w) FULL_SOC_STD^2 with the guard's weight w (rounding only).
     floor = max(FULL_SOC_STD, LFP.filters["hybrid"].get("model_soc_std", 0.0))
     w = guarded_at_full.model_weight
+    a = FULL_SOC_STD**2 / (FULL_SOC_STD**2 + floor**2)
+    fused = (1.0 - a) * FULL_SOC_STD + a * floor
     assert est.soc_var == guarded_at_full.soc_var
-    assert est.soc_var == pytest.approx(w * floor**2 + (1.0 - w) * FULL_SOC_STD**2, rel=1e-12)
+    assert est.soc_var == pytest.approx(w * fused**2 + (1.0 - w) * FULL_SOC_STD**2, rel=1e-12)
     assert tr.runtime.full and tr.runtime.charge.phase is ChargePhase.FULL
     assert tr.soc == pytest.approx(1.0, abs=1e-3)  # the estimator itself, on the next samples
     # During the charge the time to full was predicted, and it is 0 once full.
