@@ -88,8 +88,7 @@ papers report:
    the guard off (the UKF's own SoC and variance are published). A rest OCV reading inside
    the identified temperatures, a reset and a CC-CV end re-anchor the count; the UKF's own
    SoC moves it while it is trusted (``follow_tau_s``, its budget's growth kept: ``guard.py``):
-   inside the identified
-   temperatures, and outside them where the OCV still resolves the SoC to
+   inside the identified temperatures, and outside them where the OCV still resolves the SoC to
    ``outside_follow_soc_max`` under the model's error grown as item 6 grows the noise (a
    wrong start at -3 degC on LFP's top knee stayed 30 points off with the count, the UKF
    beside it right within a minute). Both read the UKF's SoC variance no smaller than the
