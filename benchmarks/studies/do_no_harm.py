@@ -20,6 +20,7 @@ Two kinds of recordings, each with its split stated (never report a tuning on it
     python benchmarks/studies/do_no_harm.py --real ../shared/real-data [--estimators hybrid]
     python benchmarks/studies/do_no_harm.py --corpus /work/corpus --split validation \
         [--chemistry sla] [--params sla_tuned.yaml]   # a tuned file in place of the bundled one
+        [--tracker]   # as the node runs them: the gate, FULL at a CC-CV end
 """
 
 from __future__ import annotations
@@ -39,9 +40,11 @@ from soc_estimator_ros.evaluation import run_estimator
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.params import BatteryParams, load_battery_params
 from soc_estimator_ros.recordings import read_recording
-from soc_estimator_ros.replay.run import battery_file_for
+from soc_estimator_ros.replay.run import battery_file_for, track_series
 from soc_estimator_ros.resources import bundled_file
-from soc_estimator_ros.series import BatterySeries
+from soc_estimator_ros.runtime import RuntimeConfig
+from soc_estimator_ros.series import BatterySeries, EstimateSeries
+from soc_estimator_ros.tracking import GateConfig, Tracker, TrackerConfig
 
 WINDOW_S = 600.0
 INITIAL_SOC_STD = 0.1
@@ -61,17 +64,50 @@ class Case:
     battery: BatteryParams
 
 
+def estimates(
+    case: Case,
+    estimator: str,
+    soc0: float,
+    start_std: float,
+    tuning: dict | None = None,
+    tracker: bool = False,
+) -> EstimateSeries:
+    """``estimator`` (its file's tuning updated with ``tuning``; coulomb has none) over the case
+    from ``soc0`` with std ``start_std``: with ``tracker`` as the node runs it
+    (``tracking.Tracker``: the input gate and the charge monitor, whose FULL at a CC-CV end
+    recalibrates the SoC to 1), else the bare estimator."""
+    tun = file_tuning(case, estimator, tuning) if estimator != "coulomb" else None
+    if not tracker:
+        est = make_estimator(estimator, case.battery, soc0, start_std, tuning=tun)
+        return run_estimator(est, case.series)
+    battery = case.battery
+    if tun is not None:
+        battery = replace(battery, filters={**battery.filters, estimator: tun})
+    config = TrackerConfig(
+        estimator=estimator,
+        initial_soc=soc0,
+        initial_soc_std=start_std,
+        runtime=RuntimeConfig(predict_period_s=0.0),
+    )
+    e, _ = track_series(
+        case.series, Tracker(battery, GateConfig.from_limits(battery.limits), config)
+    )
+    return e
+
+
 def score(
-    case: Case, estimator: str, start_std: float = INITIAL_SOC_STD, tuning: dict | None = None
+    case: Case,
+    estimator: str,
+    start_std: float = INITIAL_SOC_STD,
+    tuning: dict | None = None,
+    tracker: bool = False,
 ) -> dict[str, float | str]:
-    """MAE, max, +-2 sigma coverage and mean sigma of ``estimator`` (its file's tuning updated
-    with ``tuning``) and of coulomb counting, both from the true start with std ``start_std``."""
+    """MAE, max, +-2 sigma coverage and mean sigma of ``estimator`` and of coulomb counting,
+    both from the true start with std ``start_std`` (:func:`estimates`)."""
     soc0 = float(np.clip(case.soc_ref[0], 0.0, 1.0))
     out = {}
     for name in (estimator, "coulomb"):
-        tun = file_tuning(case, name, tuning) if name != "coulomb" else None
-        est = make_estimator(name, case.battery, soc0, start_std, tuning=tun)
-        e = run_estimator(est, case.series)
+        e = estimates(case, name, soc0, start_std, tuning, tracker)
         after = (case.series.t_s - case.series.t_s[0] >= WINDOW_S) & np.isfinite(case.soc_ref)
         err = e.soc[after] - case.soc_ref[after]
         out[name] = (
@@ -165,7 +201,7 @@ def corpus_cases(root: Path, params: BatteryParams | None = None) -> list[Case]:
     return cases
 
 
-def _job(args: tuple[Case, str, float, dict | None]) -> dict[str, float | str]:
+def _job(args: tuple[Case, str, float, dict | None, bool]) -> dict[str, float | str]:
     return score(*args)
 
 
@@ -203,6 +239,11 @@ def main() -> int:
         help="a battery file for --corpus' missions of its chemistry (default: the bundled)",
     )
     add_tuning_option(ap, "a tuning entry of the estimator over its file's (e.g. model_prior=1)")
+    ap.add_argument(
+        "--tracker",
+        action="store_true",
+        help="each estimator as the node runs it (the gate, FULL at a CC-CV end), not bare",
+    )
     args = ap.parse_args()
     cases: list[Case] = []
     if args.real is not None:
@@ -215,7 +256,11 @@ def main() -> int:
         cases += corpus_cases(args.corpus, params)
     cases = selected(cases, args.split, args.chemistry)
     tuning = tuning_of(args.tuning)
-    jobs = [(c, e, args.start_std, tuning) for c in cases for e in args.estimators.split(",")]
+    jobs = [
+        (c, e, args.start_std, tuning, args.tracker)
+        for c in cases
+        for e in args.estimators.split(",")
+    ]
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
         rows = list(pool.map(_job, jobs))
     keys = ("mae", "max", "cc_mae", "cc_max", "margin", "coverage", "std")
@@ -227,7 +272,8 @@ def main() -> int:
     print(
         f"(% SoC after {WINDOW_S:.0f} s; margin = max - coulomb max, <= 1 is the rule; worst "
         f"{worst:.2f}; coverage = % of samples with |error| <= 2 sigma, 90-100 the target; "
-        f"std = mean reported sigma; start std {args.start_std:g})"
+        f"std = mean reported sigma; start std {args.start_std:g}; "
+        f"{'through the tracker' if args.tracker else 'bare estimators'})"
     )
     for line in summary(rows):
         print(line)

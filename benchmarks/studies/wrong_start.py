@@ -22,7 +22,7 @@ not on the flat stretches, where a rest does not tell either (item 9). Per start
 * ``final``: |error| at the end (points) and ``std`` sigma there.
 
     python benchmarks/studies/wrong_start.py --corpus /work/corpus --split validation \
-        [--chemistry lfp] [--jobs 2]
+        [--chemistry lfp] [--jobs 2] [--tracker]
 """
 
 from __future__ import annotations
@@ -42,14 +42,12 @@ from do_no_harm import (  # noqa: E402
     Case,
     add_tuning_option,
     corpus_cases,
-    file_tuning,
+    estimates,
     selected,
     tuning_of,
 )
 
-from soc_estimator_ros.estimators import make_estimator  # noqa: E402
 from soc_estimator_ros.estimators.hybrid import Hybrid  # noqa: E402
-from soc_estimator_ros.evaluation import run_estimator  # noqa: E402
 
 OFFSETS = (0.3, -0.3)
 START_STD = 0.1
@@ -70,16 +68,18 @@ def tell_index(case: Case) -> int | None:
 
 
 def score(
-    case: Case, offset: float, start_std: float = START_STD, tuning: dict | None = None
+    case: Case,
+    offset: float,
+    start_std: float = START_STD,
+    tuning: dict | None = None,
+    tracker: bool = False,
 ) -> dict[str, float | str] | None:
-    """One start (module docstring), the file's hybrid tuning updated with ``tuning``; None
-    when it leaves [0, 1]."""
+    """One start (module docstring), the file's hybrid tuning updated with ``tuning``, bare or
+    as the node runs it (``tracker``: ``do_no_harm.estimates``); None when it leaves [0, 1]."""
     soc0 = float(case.soc_ref[0]) + offset
     if not 0.0 <= soc0 <= 1.0:
         return None
-    tun = file_tuning(case, "hybrid", tuning)
-    est = make_estimator("hybrid", case.battery, soc0, start_std, tuning=tun)
-    out = run_estimator(est, case.series)
+    out = estimates(case, "hybrid", soc0, start_std, tuning, tracker)
     t = case.series.t_s - case.series.t_s[0]
     err = np.abs(out.soc - case.soc_ref)
     k = tell_index(case)
@@ -100,7 +100,7 @@ def score(
     }
 
 
-def _job(args: tuple[Case, float, float, dict | None]) -> dict[str, float | str] | None:
+def _job(args: tuple[Case, float, float, dict | None, bool]) -> dict[str, float | str] | None:
     return score(*args)
 
 
@@ -130,6 +130,11 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--start-std", type=float, default=START_STD, help="the start's std")
     add_tuning_option(ap, "a hybrid tuning entry over its file's")
+    ap.add_argument(
+        "--tracker",
+        action="store_true",
+        help="the hybrid as the node runs it (the gate, FULL at a CC-CV end), not bare",
+    )
     args = ap.parse_args()
     tuning = tuning_of(args.tuning)
     if not args.corpus.is_dir():
@@ -137,7 +142,7 @@ def main() -> int:
         return 1
     cases = selected(corpus_cases(args.corpus), args.split, args.chemistry)
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
-        jobs = [(c, o, args.start_std, tuning) for c in cases for o in OFFSETS]
+        jobs = [(c, o, args.start_std, tuning, args.tracker) for c in cases for o in OFFSETS]
         rows = [r for r in pool.map(_job, jobs) if r]
     keys = ("offset", "tell_s", "after", "held", "final", "std")
     print(f"{'case':<28} {'split':<10} " + " ".join(f"{k:>8}" for k in keys))
@@ -147,7 +152,8 @@ def main() -> int:
             + " ".join(f"{float(r[k]):8.1f}" if k != "tell_s" else _tell(r[k]) for k in keys)
         )
     print(
-        f"(points of SoC; start std {args.start_std:g}; tell_s: when the OCV could tell, s; "
+        f"(points of SoC; start std {args.start_std:g}"
+        f"{'; through the tracker' if args.tracker else ''}; tell_s: when the OCV could tell, s; "
         f"after: max |error| from {WINDOW_S:.0f} s later, < 2 the target; held: % of the "
         "samples before with sigma >= |error| / 2, 100 the target)"
     )

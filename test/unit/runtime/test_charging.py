@@ -13,6 +13,7 @@ from soc_estimator_ros import messages as m
 from soc_estimator_ros.params import ChargeSettings, load_battery_params
 from soc_estimator_ros.runtime.charging import (
     CHARGE_CONFIRM_S,
+    TERMINATION_TAPER_FACTOR,
     ChargeMonitor,
     ChargePhase,
     ChargeSpec,
@@ -73,6 +74,41 @@ def test_a_cc_cv_charge_ends_in_full_and_full_holds_until_the_pack_discharges():
     changes, phases, t = run(cm, [(5.0, 0.35, 13.3)], t0=t)
     assert changes == ["released"] and not cm.full
     assert phases.index(ChargePhase.NONE) < 30  # 3 s: the low-pass, not the first sample
+
+
+def cc_cv_to(end_a: float) -> list[tuple[float, float, float]]:
+    """A CC phase at 3 A, then the CV phase at 14.4 V tapering to ``end_a`` (charge, A) at
+    1 Hz with a 40 mA-noise sensor (the corpus' current sensor)."""
+    rng = np.random.default_rng(3)
+    segments = [(120.0, -3.0, 13.6), (60.0, -3.0, 14.2)]
+    taper = np.geomspace(3.0, end_a, 90) + rng.normal(0.0, 0.04, 90)
+    return segments + [(1.0, -float(i), 14.4) for i in taper]
+
+
+@pytest.mark.parametrize(
+    ("after", "expected"),
+    [
+        ((30.0, 0.0, 13.6), ["confirmed", "full"]),  # the charger off, the robot parked
+        ((30.0, 8.0, 13.2), ["confirmed", "full", "released"]),  # driving away at once
+    ],
+)
+def test_a_charger_that_stops_at_its_taper_ends_in_full(after, expected):
+    """The usual CC-CV charger stops the moment its reading reaches the taper (0.30 A here):
+    the pack is never below the taper for the hold, and the end is still a full pack."""
+    cm = ChargeMonitor(spec(LFP))
+    changes, phases, _ = run(cm, [*cc_cv_to(0.30), after], dt=1.0)
+    assert changes == expected
+    assert ChargePhase.CV in phases and phases[-1] is (
+        ChargePhase.FULL if after[1] <= 0.1 else ChargePhase.NONE
+    )
+
+
+def test_a_charge_interrupted_in_its_cv_phase_is_not_full():
+    """Off the dock at 0.6 A, above TERMINATION_TAPER_FACTOR x the taper (0.45 A): not full."""
+    assert 0.6 > TERMINATION_TAPER_FACTOR * spec(LFP).taper_current_a
+    cm = ChargeMonitor(spec(LFP))
+    changes, _, _ = run(cm, [*cc_cv_to(0.6), (30.0, 0.0, 13.6), (10.0, 2.0, 13.2)], dt=1.0)
+    assert changes == ["confirmed", "released"] and not cm.full
 
 
 def test_a_new_charge_releases_full_at_once():
