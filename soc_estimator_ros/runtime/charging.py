@@ -19,8 +19,10 @@ charge). It lasts until the pack discharges: the current low-passed over ``LOWPA
   taper``;
 * **terminated** (a charger that stops at its taper current, the usual CC-CV end): a sample in
   the band with the charge current tapered to ``idle_current_a < charge current <=
-  TERMINATION_TAPER_FACTOR x taper``, and the next one no longer charging (``charge current <=
-  idle_current_a``: the charger off, or the robot already driving away). Such a charger stops
+  TERMINATION_TAPER_FACTOR x taper``, then one no longer charging (``charge current <=
+  idle_current_a``: the charger off, or the robot already driving away), with no charge above
+  that factor between (samples out of the band at a tapered current between are the stop
+  itself, e.g. an interval's mean at ``filter_rate_hz``). Such a charger stops
   the moment its own reading reaches the taper, so the held rule never saw a pack below the
   taper for ``hold_s``: on the corpus' simulated LFP dock charges (a CC-CV charger stopping at
   0.05 C) it found FULL on 2 of 19 (docs/accuracy.md "Charging: FULL at the charger's end").
@@ -151,8 +153,8 @@ class ChargeMonitor:
         self.phase = ChargePhase.NONE
         self.current_lp_a = 0.0  # low-passed current, core sign (discharge positive)
         self.held_s = 0.0  # how long the CV end has held
-        #: The last sample's charge current when it was in the band and tapered (the
-        #: terminated rule), else None.
+        #: The charge current of the last sample in the band with it tapered, while no charge
+        #: above the terminated rule's factor came since (that rule), else None.
         self._tapered_a: float | None = None
         self._cc_run_s = 0.0  # how long the charge current has stayed above the threshold
         self._last_t: float | None = None
@@ -195,6 +197,7 @@ class ChargeMonitor:
                 return ChargeChange("released", f"FULL released: {why}")
             return None
         if self.phase is ChargePhase.NONE:
+            self._tapered_a = None  # a taper belongs to the charge it ended
             if self._cc_run_s >= CHARGE_CONFIRM_S:
                 self.phase = ChargePhase.CC
                 return ChargeChange(
@@ -217,7 +220,12 @@ class ChargeMonitor:
         band = self.in_cv_band(voltage_v)
         self.phase = ChargePhase.CV if band else ChargePhase.CC
         end_a = TERMINATION_TAPER_FACTOR * spec.taper_current_a
-        self._tapered_a = charge_a if band and spec.idle_current_a < charge_a <= end_a else None
+        if charge_a > end_a:  # charging harder: not (or no longer) the taper
+            self._tapered_a = None
+        elif band and charge_a > spec.idle_current_a:
+            self._tapered_a = charge_a
+        # else kept: a sample between the band and the stop (a filter interval's mean, with
+        # filter_rate_hz, holds part of each) still ends a tapered charge
         tapered = -spec.idle_current_a <= charge_a <= spec.taper_current_a
         if band and tapered:
             self.held_s += dt

@@ -103,6 +103,14 @@ def test_a_charger_that_stops_at_its_taper_ends_in_full(after, expected):
     )
 
 
+def test_the_stop_read_through_a_filter_interval_is_full():
+    """With filter_rate_hz the monitor reads interval means: the interval holding the stop is
+    half the CV end, half the charger off (0.15 A at 14.0 V, out of the band)."""
+    cm = ChargeMonitor(spec(LFP))
+    changes, _, _ = run(cm, [*cc_cv_to(0.30), (1.0, -0.15, 14.0), (5.0, 0.0, 13.6)], dt=1.0)
+    assert changes == ["confirmed", "full"]
+
+
 def test_a_charge_interrupted_in_its_cv_phase_is_not_full():
     """Off the dock at 0.6 A, above TERMINATION_TAPER_FACTOR x the taper (0.45 A): not full."""
     assert 0.6 > TERMINATION_TAPER_FACTOR * spec(LFP).taper_current_a
