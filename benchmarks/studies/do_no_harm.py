@@ -40,11 +40,9 @@ from soc_estimator_ros.evaluation import run_estimator
 from soc_estimator_ros.identification.cli import identify_tests
 from soc_estimator_ros.params import BatteryParams, load_battery_params
 from soc_estimator_ros.recordings import read_recording
-from soc_estimator_ros.replay.run import battery_file_for, track_series
+from soc_estimator_ros.replay.run import battery_file_for, replay_estimator
 from soc_estimator_ros.resources import bundled_file
-from soc_estimator_ros.runtime import RuntimeConfig
 from soc_estimator_ros.series import BatterySeries, EstimateSeries
-from soc_estimator_ros.tracking import GateConfig, Tracker, TrackerConfig
 
 WINDOW_S = 600.0
 INITIAL_SOC_STD = 0.1
@@ -73,8 +71,8 @@ def estimates(
     tracker: bool = False,
 ) -> EstimateSeries:
     """``estimator`` (its file's tuning updated with ``tuning``; coulomb has none) over the case
-    from ``soc0`` with std ``start_std``: with ``tracker`` as the node runs it
-    (``tracking.Tracker``: the input gate and the charge monitor, whose FULL at a CC-CV end
+    from ``soc0`` with std ``start_std``: with ``tracker`` as the node runs it (``soc_replay``'s
+    ``replay_estimator``: the tracker's input gate and charge monitor, whose FULL at a CC-CV end
     recalibrates the SoC to 1), else the bare estimator."""
     tun = file_tuning(case, estimator, tuning) if estimator != "coulomb" else None
     if not tracker:
@@ -83,16 +81,10 @@ def estimates(
     battery = case.battery
     if tun is not None:
         battery = replace(battery, filters={**battery.filters, estimator: tun})
-    config = TrackerConfig(
-        estimator=estimator,
-        initial_soc=soc0,
-        initial_soc_std=start_std,
-        runtime=RuntimeConfig(predict_period_s=0.0),
+    run = replay_estimator(
+        case.series, battery, estimator, repr(soc0), case.name, initial_soc_std=start_std
     )
-    e, _ = track_series(
-        case.series, Tracker(battery, GateConfig.from_limits(battery.limits), config)
-    )
-    return e
+    return run.estimates
 
 
 def score(

@@ -126,11 +126,12 @@ def tracker_config(
     runtime: bool = False,
     health: bool = False,
     filter_rate_hz: float = 0.0,
+    initial_soc_std: float = INITIAL_SOC_STD,
 ) -> TrackerConfig:
-    """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text);
-    ``runtime``: predictions every second as the node makes them (else none); ``health``:
-    learn the battery's health; ``filter_rate_hz``: filter steps per second (0: every
-    sample)."""
+    """The tracker's start for ``initial_soc``: ``"ocv"``, ``"ref"`` or a fraction (text), the
+    last two with std ``initial_soc_std``; ``runtime``: predictions every second as the node
+    makes them (else none); ``health``: learn the battery's health; ``filter_rate_hz``: filter
+    steps per second (0: every sample)."""
     rt = RuntimeConfig() if runtime else RuntimeConfig(predict_period_s=0.0)
     period_s = filter_period_s(filter_rate_hz)
     if initial_soc == "ocv":
@@ -157,7 +158,7 @@ def tracker_config(
     return TrackerConfig(
         estimator=estimator,
         initial_soc=value,
-        initial_soc_std=INITIAL_SOC_STD,
+        initial_soc_std=initial_soc_std,
         runtime=rt,
         health=health,
         filter_period_s=period_s,
@@ -278,10 +279,12 @@ def replay_estimator(
     health: bool = False,
     state: Path | None = None,
     filter_rate_hz: float = 0.0,
+    initial_soc_std: float = INITIAL_SOC_STD,
 ) -> ReplayResult:
     """One estimator over a recording, offline, behind a tracker (with the runtime
     monitor's predictions when ``runtime``; learning the health when ``health`` or with a
-    ``state`` file, from whose health it starts and to which it writes it back)."""
+    ``state`` file, from whose health it starts and to which it writes it back; a given
+    start's std ``initial_soc_std``)."""
     saved, health_start = None, ""
     if state is not None:
         saved, health_start = resume_health(state, battery.name)
@@ -289,7 +292,13 @@ def replay_estimator(
         battery,
         GateConfig.from_limits(battery.limits),
         tracker_config(
-            series, estimator, initial_soc, runtime, health or state is not None, filter_rate_hz
+            series,
+            estimator,
+            initial_soc,
+            runtime,
+            health or state is not None,
+            filter_rate_hz,
+            initial_soc_std,
         ),
         health=saved,
     )
