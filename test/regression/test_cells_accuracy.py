@@ -28,11 +28,12 @@ MISSIONS = ("lfp4s_cells_1_full", "lfp4s_cells_2_partial", "lfp4s_cells_3_cold")
 #: hybrid reads no load there while it is that wide (item 9); the cold one starts 4.9 points
 #: above it on the flat top, where nothing corrects it before the step near 0.75.
 MISSED: dict[tuple[str, str], str] = {
-    ("lfp4s_cells_2_partial", "per-cell MAE"): "measured cell MAE % 1.62 2.02 1.10 1.60: "
+    ("lfp4s_cells_2_partial", "per-cell MAE"): "measured cell MAE % 1.59 2.03 1.02 1.57: "
     "cells 2 and 4 above 1.5 (the pack's hybrid from a wide OCV start 7 points low)",
-    ("lfp4s_cells_2_partial", "usable MAE"): "measured usable MAE 1.59 %: the pack's hybrid "
-    "from a wide OCV start 7 points low on the plateau",
-    ("lfp4s_cells_3_cold", "per-cell MAE"): "measured cell MAE % 1.38 0.88 1.76 0.89: cell 3 "
+    ("lfp4s_cells_2_partial", "usable MAE"): "measured usable MAE 1.75 %: the pack's hybrid "
+    "from a wide OCV start 7 points low on the plateau (1.56 % of it), and 0 from the first "
+    "cut-off, where the C/20 reference still counts 8.5 % (0.19 %)",
+    ("lfp4s_cells_3_cold", "per-cell MAE"): "measured cell MAE % 1.39 0.86 1.79 0.90: cell 3 "
     "above 1.5 (the pack's hybrid off the cells' mean, cold OCV start)",
 }
 
@@ -84,7 +85,9 @@ def test_weakest_cell_identified_at_the_end(name: str) -> None:
 
 @pytest.mark.slow
 def test_usable_soc_reaches_zero_at_the_first_cut_off() -> None:
-    name = "lfp4s_cells_2_partial"  # the mission that runs its weakest cell to its cut-off
+    # The mission whose weakest cell reaches its cut-off voltage (the simulator's true cell
+    # voltage at or below 2.5 V: under the 4-A limp-home load, 8.5 % of its C/20 charge left).
+    name = "lfp4s_cells_2_partial"
     s = score(name)
     assert s.usable_at_cutoff_est is not None
     check(

@@ -39,7 +39,8 @@ def test_usable_soc_is_the_weakest_cells_remaining_charge() -> None:
     f = bank.filter
     f.x[:, 0] = [0.02, -0.04, 0.0, 0.03]
     f.x[:, 1] = [0.0, 0.05, 0.0, -0.02]
-    ce = bank._estimate(np.full(4, 3.3), np.ones(4, dtype=bool), 0.5, 1e-4)
+    ok = np.ones(4, dtype=bool)
+    ce = bank._estimate(np.full(4, 3.3), ok, ~ok, 0.5, 1e-4)
     soc = 0.5 + f.x[:, 0]
     remaining = soc * (1 + f.x[:, 1])
     room = (1 - soc) * (1 + f.x[:, 1])
@@ -59,6 +60,23 @@ def test_cell_over_and_under_voltage_flags() -> None:
     np.testing.assert_array_equal(ce.over_voltage, [False, True, False, False])
     np.testing.assert_array_equal(ce.under_voltage, [False, False, True, False])
     assert math.isclose(ce.spread_v, 3.7 - 2.4, rel_tol=1e-6)
+
+
+def test_a_cell_at_its_cut_off_empties_the_pack_until_the_load_stops() -> None:
+    bank = CellBank(LFP, 4)
+    lo, _ = cell_limits_v(LFP, 4)
+    v = np.array([3.20, 3.21, 3.19, 3.20])
+    assert bank.step(0.0, 4.0, v, 0.08, 1e-4).usable_soc > 0.05
+    # The weakest cell's voltage reaches its limit under the 4-A load: the pack's cut-off.
+    ce = bank.step(1.0, 4.0, np.array([3.0, 3.0, lo, 3.0]), 0.07, 1e-4)
+    assert ce.usable_soc == 0.0
+    assert ce.weakest == 2
+    np.testing.assert_array_equal(ce.under_voltage, [False, False, True, False])
+    # Back above its limit under a lighter load, still a load: still no usable charge.
+    assert bank.step(2.0, 2.0, np.array([3.1, 3.1, lo + 0.2, 3.1]), 0.07, 1e-4).usable_soc == 0.0
+    # The robot stopped (0.3 A <= 0.1 C), every cell above its limit: the estimate again.
+    ce = bank.step(3.0, 0.3, v, 0.07, 1e-4)
+    assert math.isclose(ce.usable_soc, 0.07 + float(bank.filter.x[:, 0].min()), rel_tol=1e-12)
 
 
 def test_a_held_current_predicts_as_that_current_from_the_last_step() -> None:
