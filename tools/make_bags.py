@@ -17,6 +17,8 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
         [--only lfp_aged75] --jobs 1     # battery health: fresh and aged packs' missions
     python tools/make_bags.py --sized --out /work/health_corpus --jobs 1   # 24 V packs
     python tools/make_bags.py --cells --out bags --jobs 2   # 4S LFP packs cell by cell
+    python tools/make_bags.py --cells [--chemistry li_ion] --seeds 60 61 ... --out DIR \
+        --jobs 2   # the cell-by-cell validation corpus (not bundled)
     python tools/make_bags.py --hysteresis --out /work/hyst_bags --jobs 1   # hysteretic LFP
     python tools/make_bags.py --hysteresis --out bags --jobs 1   # its bundled test only
 
@@ -213,8 +215,9 @@ PACKS = {
         resistance_ohm=0.0465,
     ),
     # Seed 001's 4-cell series Li-ion pack: Chen2020's LG M50 (5 Ah nominal, 2.5-4.2 V) as
-    # it is, 4S: 14.4 V nominal, 10.0 V cut-off, charged at 16.8 V. For the pulse test and
-    # its identification only (config/li_ion_4s_chen2020.yaml); no corpus missions.
+    # it is, 4S: 14.4 V nominal, 10.0 V cut-off, charged at 16.8 V. Its pulse test and
+    # identification (config/li_ion_4s_chen2020.yaml) and cell-by-cell missions (--cells
+    # --chemistry li_ion); no scenario corpus. resistance_ohm measured here as the others'.
     "li_ion": Pack(
         "li_ion",
         4,
@@ -225,6 +228,7 @@ PACKS = {
         TECH["li_ion"],
         "LGM50-4S-SIM",
         charge_voltage_v=16.8,
+        resistance_ohm=0.107,
         parameter_set="Chen2020",
         cell_window_v=(2.5, 4.2),
     ),
@@ -2061,6 +2065,15 @@ class CellsSpec:
     stop_soc: float  # the mission ends when the weakest cell's true SoC reaches this
     rest_s: float = 0.0  # a rest half-way down (robot off, bridge on)
     description: str = ""
+    chemistry: str = "lfp"  # PACKS' key: lfp, or li_ion (seed 001's 4S LG M50)
+
+
+#: The mission's currents times this per chemistry: the seeder robot's loads (38 A peaks) are a
+#: 6 Ah LFP pack's; a 5 Ah LG M50 pack (7.3 A continuous) gets half of them.
+CELLS_LOAD_X = {"lfp": 1.0, "li_ion": 0.5}
+#: The cell-by-cell bags' names (``<prefix>_cells_...``) and serial numbers per chemistry.
+CELLS_PREFIX = {"lfp": "lfp4s", "li_ion": "li_ion4s"}
+CELLS_SERIAL = {"lfp": "ROYPOW-12V6AH-4S-SIM", "li_ion": "LGM50-4S-SIM"}
 
 
 CELLS_SPECS = [
@@ -2111,7 +2124,7 @@ CELLS_CORPUS_TEMP_C = (0.0, 35.0)
 CELLS_CORPUS_PART_SOC = (0.50, 0.85)
 
 
-def cells_corpus_spec(seed: int) -> CellsSpec:
+def cells_corpus_spec(seed: int, chemistry: str = "lfp") -> CellsSpec:
     """One validation mission of the cell-by-cell corpus, drawn from ``seed``."""
     rng = np.random.default_rng(seed + 7000)
     temp_c = float(round(rng.uniform(*CELLS_CORPUS_TEMP_C), 1))
@@ -2124,15 +2137,17 @@ def cells_corpus_spec(seed: int) -> CellsSpec:
     stop = 0.01 if rng.uniform() < 0.5 else 0.20
     rest_s = float(round(rng.uniform(600.0, 2400.0))) if rng.uniform() < 0.5 else 0.0
     return CellsSpec(
-        f"lfp4s_cells_val_{seed}",
+        f"{CELLS_PREFIX[chemistry]}_cells_val_{seed}",
         seed,
         temp_c,
         start,
         stop,
         rest_s,
-        f"4S LFP pack cell by cell, validation corpus: {temp_c:g} degC, the fullest cell from "
+        f"4S {chemistry.upper().replace('_', '-')} pack cell by cell, validation corpus: "
+        f"{temp_c:g} degC, the fullest cell from "
         f"{start:.0%}, down to the weakest cell's {'cut-off' if stop < 0.05 else f'{stop:.0%}'}"
         + (f", a {rest_s / 60:.0f}-min stop half-way." if rest_s > 0 else "."),
+        chemistry,
     )
 
 
@@ -2140,7 +2155,7 @@ def simulate_cells(spec: CellsSpec) -> dict:
     """Each cell its own PyBaMM simulation carrying the same pack current; the pack voltage is
     the sum of the cells'. A cell's reference SoC is over its own capacity (the bundled pack's
     reference capacity times its capacity factor: the corpus measured it within 1 %)."""
-    base = PACKS["lfp"]
+    base = PACKS[spec.chemistry]
     n = base.cells
     spread = np.random.default_rng(spec.seed + 500)
     cap_x = 1.0 + spread.uniform(-CELLS_CAPACITY_SPREAD, CELLS_CAPACITY_SPREAD, n)
@@ -2158,7 +2173,7 @@ def simulate_cells(spec: CellsSpec) -> dict:
         )
         for k in range(n)
     ]
-    caps = base_capacity_ah("lfp") * cap_x
+    caps = base_capacity_ah(spec.chemistry) * cap_x
     sims = [PackSim(p, spec.temp_c) for p in packs]
     socs = lambda: np.array([1.0 - s.discharged_ah / c for s, c in zip(sims, caps, strict=True)])  # noqa: E731
     c5 = (30.0, base.pack_capacity_ah / 5.0)
@@ -2174,9 +2189,10 @@ def simulate_cells(spec: CellsSpec) -> dict:
     half = spec.start_soc - 0.5 * (spec.start_soc - spec.stop_soc)
     rested = spec.rest_s <= 0.0
     for sim, rec in zip(sims, recs, strict=True):
-        run_segments(sim, [(CELLS_BOOT_S, ELECTRONICS_A)], rec, rate)
+        run_segments(sim, [(CELLS_BOOT_S, ELECTRONICS_A * CELLS_LOAD_X[spec.chemistry])], rec, rate)
     while float(np.min(socs())) > spec.stop_soc:
         duration_s, current_a = next(work)
+        current_a *= CELLS_LOAD_X[spec.chemistry]
         if float(np.min(socs())) < CELLS_LIMP_SOC:
             current_a = min(current_a, CELLS_LIMP_A)
         segs = [(on_grid(duration_s, rate), current_a)]
@@ -2232,8 +2248,8 @@ def build_cells(spec: CellsSpec, out_dir: str) -> dict:
     """Simulate, check and write one cell-by-cell mission; its reference SoC is the usable one
     over the bundled pack's reference capacity, ``/battery/cell_soc_reference`` every cell's."""
     data = simulate_cells(spec)
-    base = PACKS["lfp"]
-    cap = base_capacity_ah("lfp")
+    base = PACKS[spec.chemistry]
+    cap = base_capacity_ah(spec.chemistry)
     rng = np.random.default_rng(spec.seed + 1000)
     sensors = SensorModel.draw(rng)
     adc = CellAdc.draw(rng, base.cells)
@@ -2256,7 +2272,7 @@ def build_cells(spec: CellsSpec, out_dir: str) -> dict:
                     design_capacity_ah=base.pack_capacity_ah,
                     technology=base.technology,
                     location="seeder_robot",
-                    serial_number="ROYPOW-12V6AH-4S-SIM",
+                    serial_number=CELLS_SERIAL[spec.chemistry],
                 ),
                 cm,
             ),
@@ -2278,7 +2294,7 @@ def build_cells(spec: CellsSpec, out_dir: str) -> dict:
                     design_capacity_ah=base.pack_capacity_ah,
                     technology=base.technology,
                     location="simulator_truth",
-                    serial_number="ROYPOW-12V6AH-4S-SIM",
+                    serial_number=CELLS_SERIAL[spec.chemistry],
                 ),
                 cv,
             ),
@@ -2307,7 +2323,7 @@ def build_cells(spec: CellsSpec, out_dir: str) -> dict:
     cut_s = round(float(t[-1] - t[0]), 1) if spec.stop_soc < 0.05 else None
     meta = {
         "name": spec.name,
-        "chemistry": "lfp",
+        "chemistry": spec.chemistry,
         "kind": "cells_mission",
         "storage": "mcap",
         "seed": spec.seed,
@@ -2349,13 +2365,15 @@ def build_cells(spec: CellsSpec, out_dir: str) -> dict:
     return meta
 
 
-def make_cells(only, out_dir: Path, jobs: int, seeds: list[int] | None = None) -> int:
+def make_cells(
+    only, out_dir: Path, jobs: int, seeds: list[int] | None = None, chemistry: str = "lfp"
+) -> int:
     if seeds:
         if out_dir.resolve() == (ROOT / "bags").resolve():
             raise SystemExit(
                 "the cells corpus is not bundled: give --out a directory outside bags/"
             )
-        specs = [cells_corpus_spec(s) for s in seeds]
+        specs = [cells_corpus_spec(s, chemistry) for s in seeds]
     else:
         specs = [s for s in CELLS_SPECS if not only or s.name in only]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -2756,16 +2774,19 @@ def main(argv: list[str] | None = None) -> int:
         help="make the hysteretic LFP pack's test and missions (Hysteresis)",
     )
     ap.add_argument("--count", type=int, default=30, help="corpus: missions per chemistry")
-    ap.add_argument(
-        "--chemistry", nargs="+", choices=sorted(CHEMISTRY_STREAM), default=["lfp", "sla"]
-    )
+    ap.add_argument("--chemistry", nargs="+", choices=sorted(PACKS), default=["lfp", "sla"])
     ap.add_argument("--seeds", type=int, nargs="+", help="corpus: these seeds, not --count")
     args = ap.parse_args(argv)
+    if "li_ion" in args.chemistry and not args.cells:
+        ap.error("--chemistry li_ion: its cell-by-cell missions only (--cells --seeds)")
     if args.corpus:
         seeds = args.seeds or range(CORPUS_FIRST_SEED, CORPUS_FIRST_SEED + args.count)
         return make_corpus(args.chemistry, list(seeds), args.out, args.jobs, args.hysteresis)
     if args.cells:
-        return make_cells(args.only, args.out, args.jobs, args.seeds)
+        chems = [c for c in args.chemistry if c in CELLS_PREFIX]
+        if len(chems) != 1 or (chems != ["lfp"] and not args.seeds):
+            ap.error("--cells: one --chemistry of lfp (default) or li_ion (with --seeds)")
+        return make_cells(args.only, args.out, args.jobs, args.seeds, chems[0])
     if args.hysteresis:
         return make_hysteresis(args.only, args.out, args.jobs)
     if args.aged or args.sized:

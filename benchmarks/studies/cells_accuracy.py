@@ -11,8 +11,9 @@ cells' capacities (a cell 3 % small drains 3 % faster: where the OCV is flat no 
     PYTHONPATH=. .venv/bin/python benchmarks/studies/cells_accuracy.py [bag ...] \
         [--initial-soc ref [--start-std 0.015]]
 
-The validation corpus (``tools/make_bags.py --cells --seeds 60 ... 69 --out DIR``): pass
-``DIR/lfp4s_cells_val_*``.
+The validation corpus (``tools/make_bags.py --cells [--chemistry li_ion] --seeds S ... --out
+DIR``): pass ``DIR/lfp4s_cells_val_*`` (or ``li_ion4s_cells_val_*``: run with the 4S Li-ion
+file).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from soc_estimator_ros.replay.run import replay_estimator
 
 ROOT = Path(__file__).resolve().parents[2]
 WINDOW_S = 600.0
+#: The battery file each chemistry's missions run with.
+BATTERY_FILES = {"lfp": "lfp_12v6ah.yaml", "li_ion": "li_ion_4s_chen2020.yaml"}
 #: The mission the cell filter's settings were chosen on (docs/cells.md); the others validate.
 TUNING = ("lfp4s_cells_1_full",)
 #: Issue 25's targets: cell and usable SoC MAE, and the usable SoC reaching 0 within 1 point
@@ -69,7 +72,7 @@ def score_bag(bag: Path, initial_soc: str = "ocv", start_std: float = 0.1) -> Ce
     std ``start_std``)."""
     series = read_battery_bag(bag)
     meta = yaml.safe_load((bag / "bag.yaml").read_text())
-    battery = load_battery_params(ROOT / "config" / "lfp_12v6ah.yaml")
+    battery = load_battery_params(ROOT / "config" / BATTERY_FILES[meta.get("chemistry", "lfp")])
     assert series.cell_soc_ref is not None
     if initial_soc == "ref":  # the pack's filter estimates the average cell: start it there
         initial_soc = repr(float(np.mean(series.cell_soc_ref[0])))
