@@ -470,7 +470,10 @@ class Hybrid(T2rcUkf):
         u_var = max(float(self.kf.P[i, i]), floor_var)
         # A count less sure than the filter takes it at follow_tau_s (a wrong start the filter
         # corrects); one as sure (the floor) only at follow_sure_tau_s: the filter's error
-        # persists (docs/accuracy.md "The guard fused").
+        # persists (docs/accuracy.md "The guard fused"). A count brought to u_var by this very
+        # following sits on that floor and grows past it by the next sample, so it keeps
+        # follow_tau_s: the slow rate is for a count surer on its own (a sure start, a rest,
+        # a charger's end); a margin that latched it was measured and not adopted (same doc).
         sure = self.count.var <= u_var
         tau_s = float(t["follow_sure_tau_s" if sure else "follow_tau_s"])
         r = u_var * tau_s / min(dt_s, tau_s)  # a gap longer than tau is still one reading
