@@ -203,6 +203,9 @@ class CellSettings:
             stopped).
         rest_min_s: ... once it has lasted this long (s).
         error_corr_s: how long a cell reading's error lasts (s; ``cells/filter.py``).
+        cutoff_hold_s: a cell at or below its under-voltage limit this long (s, sample time)
+            is the pack's cut-off: the usable SoC reads 0 (a BMS's under-voltage delay; one
+            reading at 0 s).
     """
 
     imbalance_soc_warn: float = 0.05
@@ -222,6 +225,7 @@ class CellSettings:
     rest_current_c_rate: float = 0.1
     rest_min_s: float = 60.0
     error_corr_s: float = 300.0
+    cutoff_hold_s: float = 1.0
 
 
 #: Bounds of every ``cells:`` entry (lo, hi).
@@ -243,6 +247,7 @@ CELL_BOUNDS: dict[str, tuple[float, float]] = {
     "rest_current_c_rate": (0.0, 10.0),
     "rest_min_s": (0.0, 86400.0),
     "error_corr_s": (0.0, 86400.0),
+    "cutoff_hold_s": (0.0, 60.0),
 }
 
 

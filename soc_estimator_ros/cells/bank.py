@@ -17,12 +17,14 @@ unequal polarization (the weaker cell carries a higher current density) more tha
 SoC, and a filter reading that as SoC pulled the weakest cell 5 points low on the simulated
 pack's lower knee.
 
-A cell reading at or below the cell's under-voltage limit is the pack's cut-off (a BMS stops
-the pack there; seed 001's protects every cell against deep discharge): the usable discharge
-SoC is then 0, and stays 0 under load until the robot stops (|I| at most the rest current) with
-every cell above its limit. The charge the estimate still counts in that cell (5-9 % of its
-C/20 charge on the simulated 4S missions at 4 A, 25 % under a 17.6-A peak at 0.5 degC) is what
-the load's polarization withholds: there for a lighter load, not for this one.
+A cell reading at or below the cell's under-voltage limit for ``cutoff_hold_s`` (1 s of
+sample time: one glitching reading is not a cut-off, as a BMS's under-voltage delay) is the
+pack's cut-off (a BMS stops the pack there; seed 001's protects every cell against deep
+discharge): the usable discharge SoC is then 0, and stays 0 under load until the robot stops
+(|I| at most the rest current) with every cell above its limit. The charge the estimate still
+counts in that cell (5-9 % of its C/20 charge on the simulated 4S missions at 4 A, 25 % under a
+17.6-A peak at 0.5 degC) is what the load's polarization withholds: there for a lighter load,
+not for this one.
 
 A cell reading that is not finite or lies more than ``absurd_margin_v`` outside the cell
 limits is rejected for that cell alone (counted per cell): the others are still updated.
@@ -168,8 +170,11 @@ class CellBank:
         self._rest_a = battery.cells.rest_current_c_rate * battery.nominal_capacity_ah
         self._rest_min_s = battery.cells.rest_min_s
         self._rest_since_s: float | None = None
-        #: A cell read at or below its limit, and the load has not stopped since.
+        #: A cell read at or below its limit for ``cutoff_hold_s``, and the load has not
+        #: stopped since; and since when a cell has been at or below it.
         self._at_cutoff = False
+        self._cutoff_hold_s = battery.cells.cutoff_hold_s
+        self._under_since_s: float | None = None
         self.last: CellEstimate | None = None
 
     def reset(self) -> None:
@@ -178,6 +183,7 @@ class CellBank:
         self._t_s = None
         self._rest_since_s = None
         self._at_cutoff = False
+        self._under_since_s = None
         self.last = None
 
     def accept(self, cell_voltage_v: np.ndarray) -> np.ndarray:
@@ -216,10 +222,15 @@ class CellBank:
         else:
             f.skip(v, ok)
         under = ok & (v <= self.v_min)
-        if under.any():
-            self._at_cutoff = True
-        elif abs(current_a) <= self._rest_a:
-            self._at_cutoff = False
+        if not under.any():
+            self._under_since_s = None
+            if abs(current_a) <= self._rest_a:
+                self._at_cutoff = False
+        else:
+            if self._under_since_s is None:
+                self._under_since_s = t_s
+            if t_s - self._under_since_s >= self._cutoff_hold_s:
+                self._at_cutoff = True
         self.last = self._estimate(v, ok, under, pack_soc, pack_soc_var)
         return self.last
 
