@@ -243,8 +243,10 @@ class CellBank:
         q = 1.0 + f.x[:, 1]
         remaining = soc * q
         room = (1.0 - soc) * q
-        # The weakest: the least remaining charge, or the lowest cell at its cut-off.
-        weakest = int(np.argmin(np.where(under, v, np.inf)) if under.any() else remaining.argmin())
+        # The weakest: the least remaining charge, or at the pack's cut-off the lowest cell at
+        # its limit (not on one glitching reading: the same hold).
+        cut = under if self._at_cutoff else np.zeros_like(under)
+        weakest = int(np.argmin(np.where(cut, v, np.inf)) if cut.any() else remaining.argmin())
         strongest = int(room.argmin())
         shown = np.where(ok, v, np.nan)
         good = v[ok]

@@ -87,7 +87,10 @@ def test_one_low_reading_under_load_is_not_a_cut_off() -> None:
     lo, _ = cell_limits_v(LFP, 4)
     v = np.array([3.20, 3.21, 3.19, 3.20])
     bank.step(0.0, 4.0, v, 0.5, 1e-4)
-    assert bank.step(1.0, 4.0, np.array([3.2, 3.2, lo - 0.3, 3.2]), 0.5, 1e-4).usable_soc > 0.4
+    ce = bank.step(1.0, 4.0, np.array([3.2, 3.2, lo - 0.3, 3.2]), 0.5, 1e-4)
+    assert ce.usable_soc > 0.4
+    assert ce.under_voltage[2]  # diagnosed, but the weakest cell is still the estimate's
+    assert ce.weakest == int(np.argmin(ce.soc))
     for k in range(2, 5):  # the glitch passed: the load goes on, the estimate stays
         assert bank.step(float(k), 4.0, v, 0.5, 1e-4).usable_soc > 0.4
 
