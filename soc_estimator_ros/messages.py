@@ -207,6 +207,17 @@ def estimate_state(
     )
 
 
+def pack_temperature_c(temperature_c: float, cell_temperature_c: Sequence[float]) -> float:
+    """The pack's temperature (degC) from a ``BatteryState``: its ``temperature``, or where
+    that is NaN (not measured, as the message defines it) the mean of the finite
+    ``cell_temperature`` values (a BMS that reports its cells' sensors only); NaN when neither
+    is given. The mean: the models take one temperature for the pack's lumped cells."""
+    if math.isfinite(temperature_c):
+        return temperature_c
+    cells = [t for t in cell_temperature_c if math.isfinite(t)]
+    return float(sum(cells) / len(cells)) if cells else math.nan
+
+
 def bridge_state(
     stamp_ns: int,
     voltage_v: float,

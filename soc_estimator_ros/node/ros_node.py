@@ -49,7 +49,7 @@ from std_srvs.srv import Trigger
 
 from ..errors import SocEstimatorError
 from ..estimators.base import Estimator
-from ..messages import estimate_state
+from ..messages import estimate_state, pack_temperature_c
 from ..params import BatteryParams, load_battery_params
 from ..resources import default_battery_file
 from ..runtime import LevelThresholds, RuntimeConfig
@@ -317,7 +317,7 @@ class SocEstimatorNode(Node):
             stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec),
             core_current_from_ros(float(msg.current)),
             float(msg.voltage),
-            float(msg.temperature),
+            pack_temperature_c(float(msg.temperature), msg.cell_temperature),
             bool(msg.present),
             tuple(msg.cell_voltage),  # an array of float32: its items are Python floats
         )

@@ -23,7 +23,13 @@ from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
 from ..errors import SocEstimatorError
-from ..messages import BATTERY_STATE, FLOAT64_ARRAY, TYPESTORE, BatteryStateFields
+from ..messages import (
+    BATTERY_STATE,
+    FLOAT64_ARRAY,
+    TYPESTORE,
+    BatteryStateFields,
+    pack_temperature_c,
+)
 from ..series import BatterySeries
 from ..units import core_current_from_ros, ns_to_stamp, stamp_to_ns
 
@@ -104,7 +110,7 @@ def read_battery_bag(
                             _stamp_ns(msg),
                             float(msg.current),
                             float(msg.voltage),
-                            float(msg.temperature),
+                            pack_temperature_c(float(msg.temperature), msg.cell_temperature),
                             float(msg.design_capacity),
                             int(msg.power_supply_technology),
                         )
@@ -163,17 +169,19 @@ def _cell_rows(by_stamp: dict[int, np.ndarray], stamps: np.ndarray) -> np.ndarra
 
 
 def battery_state_message(
-    fields: BatteryStateFields, cell_voltage_v: Sequence[float] | np.ndarray = ()
+    fields: BatteryStateFields,
+    cell_voltage_v: Sequence[float] | np.ndarray = (),
+    cell_temperature_c: Sequence[float] | np.ndarray = (),
 ) -> Any:
-    """A rosbags ``sensor_msgs/BatteryState`` with ``fields`` (``messages`` holds the rules)
-    and the cells' voltages (V, in series order; empty: not measured)."""
+    """A rosbags ``sensor_msgs/BatteryState`` with ``fields`` (``messages`` holds the rules),
+    the cells' voltages (V, in series order; empty: not measured) and temperatures (degC)."""
     values = asdict(fields)
     sec, nsec = ns_to_stamp(values.pop("stamp_ns"))
     frame_id = values.pop("frame_id")
     return _MSG(
         header=_HEADER(stamp=_TIME(sec=sec, nanosec=nsec), frame_id=frame_id),
         cell_voltage=np.asarray(cell_voltage_v, dtype=np.float32),
-        cell_temperature=np.array([], dtype=np.float32),
+        cell_temperature=np.asarray(cell_temperature_c, dtype=np.float32),
         **values,
     )
 

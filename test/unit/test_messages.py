@@ -127,3 +127,11 @@ def test_estimate_labels_and_vector_with_cells() -> None:
     assert [named[f"cell.soc_{k}"] for k in range(1, 5)] == list(cells.soc)
     # Without cells the vector is the one it always was.
     assert m.estimate_vector(3.0, est) == data[: len(plain)]
+
+
+def test_pack_temperature_is_the_packs_else_the_mean_of_its_cells() -> None:
+    nan = math.nan
+    assert m.pack_temperature_c(21.5, [4.0, 6.0]) == 21.5  # the pack's own reading wins
+    assert m.pack_temperature_c(nan, [4.0, 6.0, nan, 5.0]) == pytest.approx(5.0)
+    assert math.isnan(m.pack_temperature_c(nan, []))
+    assert math.isnan(m.pack_temperature_c(nan, [nan, nan]))

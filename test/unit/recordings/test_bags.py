@@ -6,6 +6,7 @@ Every bag is read with rosbags (through ``bag_io``) and compared with its machin
 
 from __future__ import annotations
 
+import math
 from functools import cache
 from pathlib import Path
 
@@ -364,3 +365,17 @@ def test_max_samples_reads_the_head_of_a_bag(name: str) -> None:
     if whole.cell_voltage_v is not None:
         np.testing.assert_array_equal(head.cell_voltage_v, whole.cell_voltage_v)
         np.testing.assert_array_equal(head.cell_soc_ref, whole.cell_soc_ref)
+
+
+def test_a_bridge_with_cell_temperatures_only_gives_the_pack_their_mean(tmp_path: Path) -> None:
+    # A BMS that reports its cells' sensors and leaves the pack's temperature NaN.
+    msgs = [
+        battery_state_message(
+            bridge_state(1_000_000_000 + k * 100_000_000, 13.2, 2.0),
+            cell_temperature_c=[4.0, 6.0, math.nan, 5.0],
+        )
+        for k in range(5)
+    ]
+    write_battery_bag(tmp_path / "b", [(STATE_TOPIC, msgs)], "mcap", "none")
+    s = read_battery_bag(tmp_path / "b", reference_topic=None)
+    np.testing.assert_allclose(s.temperature_c, 5.0)
