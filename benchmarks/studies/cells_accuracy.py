@@ -57,7 +57,6 @@ class CellScore:
     weakest_true: int
     usable_at_cutoff_est: float | None  # None: no cell reached its cut-off voltage
     usable_at_cutoff_true: float | None
-    cutoff_s: float | None  # when the first cell's true voltage reached its cut-off
     # The true usable SoC where the estimate first reads 0 less the true usable SoC at the
     # first cut-off (fraction; > 0: the estimate said empty early; inf: it never read 0).
     zero_gap: float | None
@@ -117,7 +116,6 @@ def score_bag(bag: Path, initial_soc: str = "ocv", start_std: float = 0.1) -> Ce
         weakest_true,
         None if k_cut is None else float(e.soc[k_cut]),
         None if k_cut is None else float(series.soc_ref[k_cut]),
-        None if k_cut is None else float(series.t_s[k_cut]),
         gap,
         float(np.mean(np.abs(err[win]) <= 2.0 * e.cell_soc_std[win])),
         float(np.mean(np.abs(np.mean(e.cell_soc, axis=1) - true_mean)[win])),

@@ -245,8 +245,10 @@ class CellBank:
         room = (1.0 - soc) * q
         # The weakest: the least remaining charge, or at the pack's cut-off the lowest cell at
         # its limit (not on one glitching reading: the same hold).
-        cut = under if self._at_cutoff else np.zeros_like(under)
-        weakest = int(np.argmin(np.where(cut, v, np.inf)) if cut.any() else remaining.argmin())
+        if self._at_cutoff and under.any():
+            weakest = int(np.argmin(np.where(under, v, np.inf)))
+        else:
+            weakest = int(remaining.argmin())
         strongest = int(room.argmin())
         shown = np.where(ok, v, np.nan)
         good = v[ok]
