@@ -99,6 +99,7 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "follow_sure_tau_s": NONE,
     "model_soc_std": NONE,
     "flat_soc_std_max": NONE,  # SoC
+    "ocv_axis_std_frac": NONE,  # a fraction of the capacity
     "outside_follow_soc_max": NONE,  # SoC
     # fractions of the file's own 5-s pulse resistance, which the scaling carries
     "resistance_std_frac": NONE,

@@ -469,6 +469,38 @@ class Recording:
         return np.concatenate(self.temperature_c)
 
 
+def decimated(rec: Recording, every: int, rest_tail_s: float = 300.0) -> Recording:
+    """``rec`` (1 Hz) with every ``every``-th sample kept, and the first sample of each
+    current (its step answered in that sample), the last ``rest_tail_s`` of a rest whole (the
+    current sensor's offset is read there: five 2-minute samples of a 40-mA quantizer read a
+    -16 mA offset as +40 mA, and the C/20 capacity 22 % low), and the last sample above the
+    cut-off (the 1-Hz recording's last, past the crossing, is a fraction of a second beyond
+    the reference capacity: its SoC below 0)."""
+    counts = np.cumsum([0] + [x.size for x in rec.t_s])
+    t = np.concatenate(rec.t_s)
+    current = np.concatenate(rec.current_a)
+    n = int(counts[-1])
+    steps = np.flatnonzero(np.diff(current) != 0.0) + 1
+    rest_tail = [
+        np.flatnonzero((current[k0:k1] == 0.0) & (t[k0:k1] > t[k1 - 1] - rest_tail_s)) + k0
+        for k0, k1 in zip(np.r_[0, steps], np.r_[steps, n], strict=True)
+    ]
+    keep = np.unique(np.concatenate([np.arange(0, n - 1, every), steps, [n - 2], *rest_tail]))
+    out = Recording()
+    for j in range(len(rec.t_s)):
+        k = keep[(keep >= counts[j]) & (keep < counts[j + 1])] - counts[j]
+        if k.size:
+            temp = rec.temperature_c[j][k] if rec.temperature_c else None
+            out.add(
+                rec.t_s[j][k],
+                rec.current_a[j][0],
+                rec.voltage_v[j][k],
+                rec.discharged_ah[j][k],
+                temp,
+            )
+    return out
+
+
 def run_segments(
     sim: PackSim, segments, rec: Recording | None, rate_hz=10.0, tail_rate_hz=None, head_s=300.0
 ):
@@ -1049,6 +1081,16 @@ SPECS = [
         rate_hz=2.0,
         tail_rate_hz=0.5,
     ),
+    BagSpec(
+        "li_ion4s_slow_discharge",
+        "li_ion",
+        "slow_discharge",
+        32,
+        description="C/20 (0.25 A) discharge from full to 10.0 V on the pack of "
+        "li_ion4s_pulse_test, for the capacity and the OCV curve; logged every 2 minutes "
+        "(bags/ stays under 80 MB).",
+        rate_hz=1.0 / 120.0,
+    ),
 ]
 
 #: Not bundled (``--dev``, into a directory of your own): seeder missions from full to 20 %
@@ -1422,6 +1464,8 @@ def simulate_bag(spec: BagSpec, capacity_ah: float, pack: Pack) -> dict:
         ]
     elif spec.kind == "slow_discharge":
         slow_discharge(pack, rec)
+        if spec.rate_hz < 1.0:
+            rec = decimated(rec, round(1.0 / spec.rate_hz))
     else:
         if spec.start_soc < 1.0:  # unrecorded: use the pack down to start_soc, then park 2 h
             while soc() > spec.start_soc:

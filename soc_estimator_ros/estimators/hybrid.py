@@ -94,7 +94,9 @@ papers report:
    beside it right within a minute). Both read the UKF's SoC variance no smaller than the
    SoC the model's persistent error hides (the UKF's ``P`` takes the error as white):
    ``model_soc_std``, and where the OCV is flat ``bias_std_v / |dOCV/dsoc|`` up to
-   ``flat_soc_std_max`` (:meth:`Hybrid._model_soc_var`). Where the model holds, the published
+   ``flat_soc_std_max``, plus where the file's capacity is a rating ``ocv_axis_std_frac (1 -
+   soc)``, what the OCV table's SoC axis is off by (:meth:`Hybrid._model_soc_var`; a rest's
+   OCV reading takes the same in volts). Where the model holds, the published
    SoC is the UKF and the count fused by those variances (``guard.py``), so where the UKF is
    no surer than the count its move counts by its share.
    ``x`` and ``p`` stay the UKF's; ``soc`` and ``soc_var`` are the published (guarded) ones.
@@ -239,6 +241,11 @@ class Hybrid(T2rcUkf):
         # (bias_std_v over the OCV slope), up to this (item 7; chosen on the LFP tuning half,
         # docs/accuracy.md "Where the OCV is flat, a floor on the filter's SoC std").
         "flat_soc_std_max": 0.02,
+        # ... plus, in quadrature, what the OCV table's SoC axis is off by where the file's
+        # capacity is not the capacity of the pack its OCV was identified on (a rating):
+        # (1 - SoC) times this relative std. soc_identify writes it from the capacity's
+        # source (identification/tuning.py); 0: the capacity was measured on that pack.
+        "ocv_axis_std_frac": 0.0,
         # SoC: outside its temperatures the count follows the UKF only where the OCV resolves
         # the SoC to this under the model's grown error (item 7; docs/accuracy.md, "From a
         # wrong start"): on LFP, the knees and the top, not the plateau.
@@ -381,14 +388,23 @@ class Hybrid(T2rcUkf):
         (item 7): what the model's persistent voltage error (``bias_std_v``) hides in SoC,
         ``max(model_soc_std, min(bias_std_v / |dOCV/dsoc|, flat_soc_std_max))^2`` at the UKF's
         SoC. The UKF's ``P`` takes every reading as independent, so on a flat OCV its SoC
-        std fell to 1.5 % where its error was 3 (``lfp_tuning_1024``, coverage 71 %)."""
+        std fell to 1.5 % where its error was 3 (``lfp_tuning_1024``, coverage 71 %).
+
+        Plus ``(ocv_axis_std_frac (1 - soc))^2``: the OCV table's SoC axis is the charge taken
+        from full over the file's capacity, so where that capacity is off by a fraction ``e``
+        from the identified pack's own (a rating given to ``soc_identify``), an OCV reading
+        at ``soc`` places the SoC ``(1 - soc) e`` off, and a count from a sure start is off by
+        the same ``e`` only over the charge it moved (the 4S Li-ion pack identified with its
+        5.0 Ah rating, 5.14 Ah at C/20: its UKF 1.4 points low at half charge, 2.2 at 20 %,
+        from the first minutes; docs/accuracy.md "Where the capacity is a rating")."""
         t = self.tuning
         var = float(t["model_soc_std"]) ** 2
         cap = float(t["flat_soc_std_max"])
         if cap > 0.0:
             flat = min(self._hidden_soc(float(t["bias_std_v"])), cap)
             var = max(var, flat * flat)
-        return var
+        axis = float(t["ocv_axis_std_frac"]) * (1.0 - float(self.kf.x[self.soc_index]))
+        return var + axis * axis
 
     def _hidden_soc(self, error_v: float) -> float:
         """The SoC a voltage error ``error_v`` hides on the OCV at the UKF's SoC: the error
@@ -433,6 +449,9 @@ class Hybrid(T2rcUkf):
         c = self.count.soc
         innovation = ocv_v - self.model.ocv.ocv(c)
         var_v2 = float(self.tuning["ocv_std_v"]) ** 2 + self.voltage_offset_var_v2
+        # the OCV axis' error (ocv_axis_std_frac) in volts at c: the reading repeats it
+        axis_v = float(self.tuning["ocv_axis_std_frac"]) * (1.0 - c) * self.model.ocv.slope(c)
+        var_v2 += axis_v * axis_v
         # No surer than the SoC the model's persistent error hides: the reading is the model's
         # OCV, and the published SoC leans on the count where it is surer than the UKF.
         self.count.fuse(innovation, self.model.ocv.slope(c), var_v2, self._model_soc_var())

@@ -58,6 +58,10 @@ class IdentificationResult:
     temperature_c: float = math.nan  # the test's temperature (median of its sensor)
     kinetic: list[KineticFit] = field(default_factory=list)  # rate test fits, when given
     fitted: list[Pulse] = field(default_factory=list)  # the windows of ``pulses``, in order
+    # Whether the capacity was measured on this pack (a slow discharge, the test's own charge
+    # to the cut-off), so that the OCV table's SoC axis is this pack's; False for a given
+    # capacity (a rating) or the template's (another pack's).
+    capacity_measured: bool = False
 
 
 def zero_current_offset(
@@ -99,19 +103,26 @@ def offset_corrected(series: BatterySeries, notes: list[str], label: str) -> Bat
     return replace(series, current_a=series.current_a - offset)
 
 
-def _capacity(test, slow, capacity_ah, template, charge_ah) -> tuple[float, str]:
+def _capacity(test, slow, capacity_ah, template, charge_ah) -> tuple[float, str, bool]:
     """Given, else from a slow discharge, else the test's own charge when it ends at the
-    cut-off (an HPPC that runs to the voltage limit), else the template's."""
+    cut-off (an HPPC that runs to the voltage limit), else the template's; with its source
+    and whether it was measured on this pack (the last two)."""
     if capacity_ah is not None:
-        return capacity_ah, "given"
+        return capacity_ah, "given", False
     if slow is not None:
-        return float(charge_removed_ah(slow)[-1]), "slow discharge, full to its end"
+        return float(charge_removed_ah(slow)[-1]), "slow discharge, full to its end", True
     cutoff_v = template.limits.voltage_min_v
     if float(np.min(test.voltage_v)) <= cutoff_v * 1.01:
-        return float(np.max(charge_ah)), (
-            f"the test's charge from full to the {cutoff_v:g} V cut-off (at the test's rates)"
+        return (
+            float(np.max(charge_ah)),
+            f"the test's charge from full to the {cutoff_v:g} V cut-off (at the test's rates)",
+            True,
         )
-    return template.capacity_ah, "template (not measured: pass --capacity-ah or a slow discharge)"
+    return (
+        template.capacity_ah,
+        "template (not measured: pass --capacity-ah or a slow discharge)",
+        False,
+    )
 
 
 def group_by_soc(fits: list[PulseFit], width: float = 0.03) -> list[list[PulseFit]]:
@@ -298,7 +309,7 @@ def identify(
     if slow is not None:
         slow = offset_corrected(slow, notes, "slow discharge")
     charge_ah = charge_removed_ah(test, notes=notes)
-    capacity, cap_source = _capacity(test, slow, capacity_ah, template, charge_ah)
+    capacity, cap_source, cap_measured = _capacity(test, slow, capacity_ah, template, charge_ah)
     if not capacity > 0:
         raise IdentificationError(f"capacity must be > 0 Ah, got {capacity}")
     pulses = segment_pulses(test, notes=notes)
@@ -399,6 +410,7 @@ def identify(
         test_temperature_c(test),
         kinetic,
         fitted,
+        cap_measured,
     )
 
 

@@ -40,6 +40,11 @@ entry (the table in docs/identification.md, "Filter tunings"):
   default: not identified); ``hybrid.update_soc_min`` (the code default, no gate: whether the
   model holds below its lowest pulse level under load is a choice on recordings of the pack,
   as the bundled LFP file's is, not something the pulses show).
+* ``hybrid.ocv_axis_std_frac`` (**derived**, else the code default): the OCV table's SoC axis
+  is the charge from full over the file's capacity, so where that capacity was not measured on
+  this pack (given: a rating; or the template's) the axis is off by as much as a pack differs
+  from its kind: the guard's ``capacity_std_frac``; the code default, 0, where it was measured
+  (a slow discharge, the test's own charge to the cut-off).
 * every other entry (``r`` of every filter, the rest detection, ``ocv_std_v``, the NIS gate,
   process noises, initial variances, sigma points, the papers' presets): the **template's**.
 
@@ -86,6 +91,7 @@ MODEL_SPECIFIC: Mapping[str, Mapping[str, str]] = {
         "r_per_a": "derived",
         "bias_std_v": "measured",
         "bias_tau_s": "default",
+        "ocv_axis_std_frac": "derived",
     },
 }
 _MODEL_KEYS = frozenset(k for block in MODEL_SPECIFIC.values() for k in block)
@@ -405,6 +411,7 @@ def identified_tunings(
             "the model's RMS error from a load to the hybrid's rest (model_error.py)",
         ),
         ("bias_tau_s", None, "default", "not identified"),
+        ("ocv_axis_std_frac", *ocv_axis_std(reference, float(hybrid["capacity_std_frac"]))),
         ("update_soc_min", None, "default", "a choice on recordings of the pack, not identified"),
     ]
     sources: list[TuningSource] = []
@@ -442,6 +449,24 @@ def identified_tunings(
     thevenin = replace(battery.thevenin, fitted_c_rate_max=gate)
     filters = _in_template_order(battery.filters, written)
     return replace(battery, thevenin=thevenin, filters=filters), sources
+
+
+def ocv_axis_std(
+    reference: IdentificationResult, capacity_std_frac: float
+) -> tuple[float | None, str, str]:
+    """``hybrid.ocv_axis_std_frac``, its source and why: the OCV table's SoC axis is the
+    charge from full over the file's capacity, so it is the identified pack's own only where
+    that capacity was measured on it (None: the code default, 0); a given capacity (a
+    rating) or the template's (another pack's) is off by as much as a pack differs from its
+    kind, the guard's ``capacity_std_frac``."""
+    if reference.capacity_measured:
+        return None, "default", f"the capacity measured on this pack ({reference.capacity_source})"
+    return (
+        capacity_std_frac,
+        "derived",
+        f"the capacity is {reference.capacity_source.split(' (')[0]}, not measured on this "
+        "pack: the OCV's SoC axis within the pack-to-pack spread (capacity_std_frac)",
+    )
 
 
 def _label(res: IdentificationResult) -> str:

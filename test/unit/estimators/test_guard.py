@@ -193,3 +193,29 @@ def test_outside_the_envelope_a_knee_still_corrects_the_count() -> None:
     )
     feed(off, 10.0, 0.36, off.model.ocv.ocv(0.995), -3.0)
     assert off.x[0] > 0.95 and off.soc < 0.75  # without it the published SoC keeps the count
+
+
+def test_a_rated_capacity_widens_the_filters_floor_by_the_ocv_axis() -> None:
+    """A file whose capacity is a rating given to ``soc_identify`` (the 4S Li-ion pack's 5.0
+    Ah, on a pack of 5.14) carries ``ocv_axis_std_frac`` 0.03: the OCV table's SoC axis is off
+    by ``(1 - soc)`` times the rating's error, and the floor of the UKF's SoC variance adds
+    ``(0.03 (1 - soc))^2`` (exact: the same floats). Such a pack, 2.8 % above its rating and
+    rested at 57 %, reads its OCV as 55.8 % through the file. From a sure start there (std
+    0.015), after 40 minutes of rest, measured on the bundled 4S Li-ion file with the key set:
+    published -1.06 points with sigma 1.59 (without the term -1.17 with sigma 1.00: the error
+    outside one sigma); the bounds are those two facts."""
+    li = load_battery_params(REPO_ROOT / "config" / "li_ion_4s_chen2020.yaml")
+    assert "ocv_axis_std_frac" not in li.filters["hybrid"]  # its capacity is measured
+    rated = {**li.filters["hybrid"], "ocv_axis_std_frac": 0.03}
+    est = make_estimator("hybrid", li, 0.57, 0.015, tuning=rated)
+    off = make_estimator("hybrid", li, 0.57, 0.015)
+    axis = 0.03 * (1.0 - 0.57)
+    assert est._model_soc_var() == pytest.approx(off._model_soc_var() + axis**2, rel=1e-12)
+    rest_v = est.model.ocv.ocv(0.57 - (1.0 - 0.57) * 0.028)
+    for e in (est, off):
+        for k in range(40 * 60 * 2):  # 2 Hz
+            e.step(0.5 * k, 0.0, rest_v, 25.0)
+    err, err_off = est.soc - 0.57, off.soc - 0.57
+    assert err < 0.0 and abs(err) < abs(err_off)  # less dragged
+    assert abs(err) <= math.sqrt(est.soc_var)  # and its sigma holds the error
+    assert abs(err_off) > math.sqrt(off.soc_var)  # where without the term it did not

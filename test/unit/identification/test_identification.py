@@ -34,6 +34,7 @@ from soc_estimator_ros.identification.surface import (
     fit_surface_lag,
     mode_path,
 )
+from soc_estimator_ros.identification.tuning import ocv_axis_std
 from soc_estimator_ros.models import (
     OcvCurve,
     ParamTable,
@@ -385,13 +386,16 @@ def test_cli_on_csv_with_sign_flag(tmp_path: Path, capsys) -> None:
     # (tuning.py): bias_std_v, the model's own error (model_error.py), on a noise-free test made
     # by a 2RC only the fits' residual (measured 0.8 mV; bound 2 mV, below the 2.3 mV sensor
     # noise the noisy fits are held to); the voltage-update gate, the pulses' 1 A over 5 Ah (the
-    # template's 6 C is its rate tests'); r_per_a the code default (one rate). The template's
-    # other hybrid entries (soc_tune's, docs/tuning.md) pass through.
+    # template's 6 C is its rate tests'); r_per_a the code default (one rate); the OCV axis'
+    # std, the capacity being given (a rating), the guard's capacity spread (the code
+    # default's 3 %: the template does not set it). The template's other hybrid entries
+    # (soc_tune's, docs/tuning.md) pass through.
     hybrid = dict(params.filters["hybrid"])
     assert 0.0 < hybrid.pop("bias_std_v") < 0.002
-    derived = ("bias_std_v", "update_c_rate_max", "r_per_a")
+    derived = ("bias_std_v", "update_c_rate_max", "r_per_a", "ocv_axis_std_frac")
     kept = {k: v for k, v in SLA.filters["hybrid"].items() if k not in derived}
-    assert kept and hybrid == {**kept, "update_c_rate_max": 0.2}
+    assert "capacity_std_frac" not in SLA.filters["hybrid"]
+    assert kept and hybrid == {**kept, "update_c_rate_max": 0.2, "ocv_axis_std_frac": 0.03}
     assert SLA.filters["hybrid"]["update_c_rate_max"] == 6.0
     assert {k: v for k, v in params.filters.items() if k != "hybrid"} == {
         k: v for k, v in SLA.filters.items() if k != "hybrid"
@@ -728,3 +732,20 @@ def test_cli_fits_the_second_lag_mode_on_a_load_test(tmp_path: Path, capsys) -> 
     assert "lfp_load_test" in out.read_text().splitlines()[0]
     assert identify_main([*args, "--load-test", str(tmp_path / "absent")]) == 2
     assert "no such file or bag" in capsys.readouterr().err
+
+
+def test_the_ocv_axis_std_follows_where_the_capacity_came_from() -> None:
+    """``hybrid.ocv_axis_std_frac``: the OCV table's SoC axis is the charge over the file's
+    capacity, so it is derived (the guard's capacity spread) where the capacity is a given
+    rating or the template's, and left at the code default (0) where a slow discharge
+    measured it on the pack (the synthetic pulse test stops at 50 %: no cut-off)."""
+    series = synthetic_pulse_test(noise=False)
+    given = identify(series, SLA, capacity_ah=5.0)
+    assert given.capacity_source == "given" and not given.capacity_measured
+    assert ocv_axis_std(given, 0.03)[:2] == (0.03, "derived")
+    template = identify(series, SLA)
+    assert template.capacity_source.startswith("template") and not template.capacity_measured
+    assert ocv_axis_std(template, 0.025)[:2] == (0.025, "derived")
+    slow = identify(series, SLA, slow=synthetic_slow_discharge(SYNTHETIC_OCV))
+    assert slow.capacity_source.startswith("slow discharge") and slow.capacity_measured
+    assert ocv_axis_std(slow, 0.03)[:2] == (None, "default")
