@@ -1,7 +1,7 @@
 """``soc_identify``: identify a battery parameter file from pulse-discharge tests.
 
-    soc_identify INPUT [INPUT ...] --chemistry {li_ion,lfp,sla} [--capacity-ah X]
-                 [--slow-discharge INPUT2] [--temperature-c T [T ...]]
+    soc_identify INPUT [INPUT ...] --chemistry {li_ion,lfp,sla} [--capacity-ah X
+                 [--capacity-measured]] [--slow-discharge INPUT2] [--temperature-c T [T ...]]
                  [--reference-capacity-ah Q] [--rate-test RATE [RATE ...]] [--load-test LOAD]
                  [--hysteresis-test HYST]
                  [--template FILE] [--tuning BLOCK.KEY=VALUE ...]
@@ -91,9 +91,11 @@ def identify_tests(
     rate_tests: list[BatterySeries] | None = None,
     load_test: BatterySeries | None = None,
     tuning: Mapping[tuple[str, str], float | tuple[float, ...]] | None = None,
+    capacity_measured: bool = False,
 ) -> tuple[BatteryParams, list[IdentificationResult]]:
     """One test, or one per temperature (see the module docstring); ``tuning``: filter entries
-    given (``--tuning``), written as given."""
+    given (``--tuning``), written as given; ``capacity_measured``: ``capacity_ah`` was measured
+    on the pack, not a rating."""
     if temperatures_c is not None and len(temperatures_c) != len(tests):
         raise IdentificationError(
             f"--temperature-c gives {len(temperatures_c)} temperature(s) for {len(tests)} tests"
@@ -105,7 +107,14 @@ def identify_tests(
     rates: Sequence[BatterySeries | None] = rate_tests or [None] * len(tests)
     if len(tests) == 1:
         res = identify(
-            tests[0], template, capacity_ah, slow, progress, rates[0], load_test=load_test
+            tests[0],
+            template,
+            capacity_ah,
+            slow,
+            progress,
+            rates[0],
+            load_test=load_test,
+            capacity_measured=capacity_measured,
         )
         if temperatures_c is not None:
             res.temperature_c = temperatures_c[0]
@@ -118,7 +127,14 @@ def identify_tests(
         )
     ref = int(np.argmin([abs(t - 25.0) for t in temps]))
     first = identify(
-        tests[ref], template, capacity_ah, slow, progress, rates[ref], load_test=load_test
+        tests[ref],
+        template,
+        capacity_ah,
+        slow,
+        progress,
+        rates[ref],
+        load_test=load_test,
+        capacity_measured=capacity_measured,
     )
     results: list[IdentificationResult] = []
     for n, test in enumerate(tests):
@@ -262,6 +278,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("input", type=Path, nargs="+", help="pulse test(s): rosbag2 bag or CSV")
     ap.add_argument("--chemistry", required=True, choices=sorted(BUNDLED_FILES))
     ap.add_argument("--capacity-ah", type=float, help="pack capacity (default: measured)")
+    ap.add_argument(
+        "--capacity-measured",
+        action="store_true",
+        help="--capacity-ah was measured on this pack (a C/20 discharge to the cut-off), not a "
+        "rating: the OCV's SoC axis is the pack's own (no hybrid.ocv_axis_std_frac)",
+    )
     ap.add_argument("--slow-discharge", type=Path, help="slow discharge (C/20) to the cut-off")
     ap.add_argument(
         "--temperature-c", type=float, nargs="+", help="each test's temperature, in order"
@@ -305,7 +327,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.capacity_measured and args.capacity_ah is None:
+        ap.error("--capacity-measured says how --capacity-ah was obtained: give --capacity-ah")
     sign = CurrentSign(args.current_sign)
     try:
         template = load_battery_params(args.template or bundled_file(args.chemistry))
@@ -333,6 +358,7 @@ def main(argv: list[str] | None = None) -> int:
             rate_tests=rate_tests,
             load_test=load_test(args.load_test, args.topic, sign) if args.load_test else None,
             tuning=given,
+            capacity_measured=args.capacity_measured,
         )
         hyst_fit = None
         if args.hysteresis_test:

@@ -103,12 +103,15 @@ def offset_corrected(series: BatterySeries, notes: list[str], label: str) -> Bat
     return replace(series, current_a=series.current_a - offset)
 
 
-def _capacity(test, slow, capacity_ah, template, charge_ah) -> tuple[float, str, bool]:
+def _capacity(
+    test, slow, capacity_ah, template, charge_ah, given_measured: bool = False
+) -> tuple[float, str, bool]:
     """Given, else from a slow discharge, else the test's own charge when it ends at the
     cut-off (an HPPC that runs to the voltage limit), else the template's; with its source
-    and whether it was measured on this pack (the last two)."""
+    and whether it was measured on this pack (the last two; a given capacity only when
+    ``given_measured`` says so)."""
     if capacity_ah is not None:
-        return capacity_ah, "given", False
+        return capacity_ah, "given" + (", measured on this pack" * given_measured), given_measured
     if slow is not None:
         return float(charge_removed_ah(slow)[-1]), "slow discharge, full to its end", True
     cutoff_v = template.limits.voltage_min_v
@@ -293,6 +296,7 @@ def identify(
     rate_test: BatterySeries | None = None,
     shape_ocv: OcvCurve | None = None,
     load_test: BatterySeries | None = None,
+    capacity_measured: bool = False,
 ) -> IdentificationResult:
     """Identify OCV, RC-model and 2-RC Thevenin parameters from a pulse test.
 
@@ -303,13 +307,17 @@ def identify(
     The surface lag (``surface.py``) is fitted on the windows of the pulse test, the rate test
     and ``load_test`` (steps at a heavy load with long rests: the slow recovery the others do
     not excite), unless ``shape_ocv`` is given (another temperature's test).
+    ``capacity_measured``: the given ``capacity_ah`` was measured on this pack (a C/20
+    discharge to the cut-off), not a rating (the hybrid's ``ocv_axis_std_frac``, tuning.py).
     """
     notes: list[str] = []
     test = from_full(test, notes, "pulse test")
     if slow is not None:
         slow = offset_corrected(slow, notes, "slow discharge")
     charge_ah = charge_removed_ah(test, notes=notes)
-    capacity, cap_source, cap_measured = _capacity(test, slow, capacity_ah, template, charge_ah)
+    capacity, cap_source, cap_measured = _capacity(
+        test, slow, capacity_ah, template, charge_ah, capacity_measured
+    )
     if not capacity > 0:
         raise IdentificationError(f"capacity must be > 0 Ah, got {capacity}")
     pulses = segment_pulses(test, notes=notes)

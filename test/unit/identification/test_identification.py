@@ -749,3 +749,39 @@ def test_the_ocv_axis_std_follows_where_the_capacity_came_from() -> None:
     slow = identify(series, SLA, slow=synthetic_slow_discharge(SYNTHETIC_OCV))
     assert slow.capacity_source.startswith("slow discharge") and slow.capacity_measured
     assert ocv_axis_std(slow, 0.03)[:2] == (None, "default")
+    told = identify(series, SLA, capacity_ah=5.0, capacity_measured=True)  # --capacity-measured
+    assert told.capacity_source == "given, measured on this pack" and told.capacity_measured
+    assert ocv_axis_std(told, 0.03)[:2] == (None, "default")
+
+
+def test_cli_capacity_measured_writes_no_axis_std(tmp_path: Path) -> None:
+    """The CLI passes ``--capacity-measured`` to the reference test's identification: the
+    file the CSV test above gets with a given (rated) capacity, without the axis' std."""
+    test = synthetic_pulse_test(noise=False)
+    csv_path = tmp_path / "pulse.csv"
+    rows = ["time_s,current_a,voltage_v,temperature_c"] + [
+        f"{t:.1f},{i:.4f},{v:.5f},25.0"
+        for t, i, v in zip(test.t_s, test.current_a, test.voltage_v, strict=True)
+    ]
+    csv_path.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "p.yaml"
+    args = [str(csv_path), "--chemistry", "sla", "--capacity-ah", "5", "--output", str(out)]
+    assert identify_main([*args, "--capacity-measured"]) == 0
+    assert "ocv_axis_std_frac" not in load_battery_params(out).filters["hybrid"]
+
+
+def test_capacity_measured_needs_the_capacity(capsys) -> None:
+    """``--capacity-measured`` says how ``--capacity-ah`` was obtained: alone, a usage error."""
+    with pytest.raises(SystemExit) as exc:
+        identify_main(
+            [
+                str(bag_path("sla_pulse_test")),
+                "--chemistry",
+                "sla",
+                "--capacity-measured",
+                "--output",
+                "x.yaml",
+            ]
+        )
+    assert exc.value.code == 2
+    assert "give --capacity-ah" in capsys.readouterr().err
