@@ -403,8 +403,13 @@ class Hybrid(T2rcUkf):
         if cap > 0.0:
             flat = min(self._hidden_soc(float(t["bias_std_v"])), cap)
             var = max(var, flat * flat)
-        axis = float(t["ocv_axis_std_frac"]) * (1.0 - float(self.kf.x[self.soc_index]))
+        axis = self._ocv_axis_soc_std(float(self.kf.x[self.soc_index]))
         return var + axis * axis
+
+    def _ocv_axis_soc_std(self, soc: float) -> float:
+        """What the OCV table's SoC axis is off by at ``soc`` where the file's capacity is a
+        rating: ``ocv_axis_std_frac (1 - soc)`` (:meth:`_model_soc_var`)."""
+        return float(self.tuning["ocv_axis_std_frac"]) * (1.0 - soc)
 
     def _hidden_soc(self, error_v: float) -> float:
         """The SoC a voltage error ``error_v`` hides on the OCV at the UKF's SoC: the error
@@ -448,13 +453,13 @@ class Hybrid(T2rcUkf):
         ocv_v = self.rest_ocv_v(current_a, voltage_v, temp_c)
         c = self.count.soc
         innovation = ocv_v - self.model.ocv.ocv(c)
-        var_v2 = float(self.tuning["ocv_std_v"]) ** 2 + self.voltage_offset_var_v2
-        # the OCV axis' error (ocv_axis_std_frac) in volts at c: the reading repeats it
-        axis_v = float(self.tuning["ocv_axis_std_frac"]) * (1.0 - c) * self.model.ocv.slope(c)
-        var_v2 += axis_v * axis_v
+        slope = self.model.ocv.slope(c)
+        # the OCV axis' error in volts at c: the reading repeats it
+        axis_v = self._ocv_axis_soc_std(c) * slope
+        var_v2 = float(self.tuning["ocv_std_v"]) ** 2 + self.voltage_offset_var_v2 + axis_v**2
         # No surer than the SoC the model's persistent error hides: the reading is the model's
         # OCV, and the published SoC leans on the count where it is surer than the UKF.
-        self.count.fuse(innovation, self.model.ocv.slope(c), var_v2, self._model_soc_var())
+        self.count.fuse(innovation, slope, var_v2, self._model_soc_var())
 
     def _resolves_outside(self, temp_c) -> bool:
         """Inside the identified temperatures, True; outside, whether the OCV at the UKF's SoC

@@ -111,7 +111,8 @@ def _capacity(
     and whether it was measured on this pack (the last two; a given capacity only when
     ``given_measured`` says so)."""
     if capacity_ah is not None:
-        return capacity_ah, "given" + (", measured on this pack" * given_measured), given_measured
+        source = "given, measured on this pack" if given_measured else "given"
+        return capacity_ah, source, given_measured
     if slow is not None:
         return float(charge_removed_ah(slow)[-1]), "slow discharge, full to its end", True
     cutoff_v = template.limits.voltage_min_v

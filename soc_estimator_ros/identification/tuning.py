@@ -464,8 +464,8 @@ def ocv_axis_std(
     return (
         capacity_std_frac,
         "derived",
-        f"the capacity is {reference.capacity_source.split(' (')[0]}, not measured on this "
-        "pack: the OCV's SoC axis within the pack-to-pack spread (capacity_std_frac)",
+        f"the capacity ({reference.capacity_source}) not measured on this pack: the OCV's SoC "
+        "axis within the pack-to-pack spread (capacity_std_frac)",
     )
 
 
