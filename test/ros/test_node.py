@@ -410,6 +410,33 @@ def test_periodic_save(make_harness, tmp_path):
     assert load_state(state_file).stamp_s == pytest.approx((T0 + 4 * S // 10) * 1e-9)
 
 
+def test_a_save_that_stalls_on_the_disk_holds_no_input(make_harness, tmp_path, monkeypatch):
+    """The periodic save's write runs on the saver's thread (node/state_saver.py): while it
+    hangs (an fsync on a busy disk took 286 ms here), every input is still estimated and
+    published; once it returns, the newest state is written."""
+    import soc_estimator_ros.node.state_saver as state_saver
+
+    started, release = threading.Event(), threading.Event()
+
+    def stalling_save(path, state):
+        started.set()
+        assert release.wait(30.0)  # released below; 30 s only bounds a failure
+        save_state(path, state)
+
+    monkeypatch.setattr(state_saver, "save_state", stalling_save)
+    state_file = tmp_path / "stalled.yaml"
+    h = make_harness(
+        estimator="coulomb", initial_soc="0.7", state_file=str(state_file), save_period_s=0.1
+    )
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(5)])
+    assert h.spin_until(started.is_set, 5.0)  # a periodic save is writing, and hangs
+    h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(5, 200)])  # every output
+    assert len(h.soc) == 200 and not state_file.exists()
+    release.set()
+    assert h.node.save_now(force=True)
+    assert load_state(state_file).stamp_s == pytest.approx((T0 + 199 * S // 10) * 1e-9)
+
+
 # -- 5. bad input ----------------------------------------------------------------------------
 def test_bad_inputs_are_rejected_counted_and_harmless(make_harness):
     h = make_harness(estimator="hybrid", initial_soc="0.8", stale_timeout_s=2.0)
@@ -520,6 +547,27 @@ def test_use_sim_time_and_publish_rate(make_harness):
     h.send([state_msg(T0 + S, 12.3, 1.0)], expect_outputs=False)
     advance_to(T0 + 7 * S // 10)
     assert h.spin_until(lambda: len(h.soc) >= 2, 2.0)
+
+
+def test_clock_follows_use_sim_time_set_at_run_time(make_harness):
+    """The node reads the system clock without sim time and the /clock with it, also when
+    ``use_sim_time`` is set after the start (the node keeps the parameter, not a per-message
+    query of the clock: docs/benchmarks.md)."""
+    from rosgraph_msgs.msg import Clock as ClockMsg
+
+    h = make_harness(estimator="coulomb")
+    # The wall clock: within a minute of this process's (the two read the same system clock;
+    # the minute only allows for a slow machine between the two reads).
+    assert abs(h.node.clock_ns() - time.time_ns()) < 60 * S
+    assert [r.successful for r in h.set_params(use_sim_time=True)] == [True]
+    clock_pub = h.io.create_publisher(ClockMsg, "/clock", 10)
+    assert h.spin_until(lambda: clock_pub.get_subscription_count() >= 1)
+    msg = ClockMsg()
+    msg.clock.sec, msg.clock.nanosec = divmod(T0, S)
+    clock_pub.publish(msg)
+    assert h.spin_until(lambda: h.node.clock_ns() == T0, 2.0)  # exactly the /clock's time
+    assert [r.successful for r in h.set_params(use_sim_time=False)] == [True]
+    assert abs(h.node.clock_ns() - time.time_ns()) < 60 * S
 
 
 # -- runtime: battery/runtime, levels, stale input ---------------------------------------------
