@@ -15,6 +15,10 @@ the node's place: the floor that rclpy and the DDS put under any Python node her
 ``--versus-relay`` (issue 28, part 4) runs the relay and the node alternately, ``--rounds``
 times each, in one invocation, and prints the node/relay ratios of CPU and p99 latency and the
 messages each lost (targets: CPU <= 1.3, p99 <= 2, no loss the relay did not have).
+``--side-by-side`` runs the relay and the node at the same time on the same input stream (the
+relay's output remapped to ``relay/soc``), ``--rounds`` times: both CPU readings come from the
+same window of the machine, so a slow spell of the VM, which moves alternate runs by up to a
+third, weighs on both alike.
 ``--cells N`` (issue 25) runs the node twice in one invocation on the same pack (the LFP file
 unless ``--battery``, its ``cells_in_series`` set to N): first without ``cell_voltage``, then
 with N cell voltages in every message, and prints both and the CPU ratio (target <= 1.5 at
@@ -26,6 +30,7 @@ Prints numbers and asserts nothing. DDS stays on loopback with a domain id of it
     python benchmarks/perf/node_latency.py [--estimator hybrid] [--seconds 30] [--domain-id 77]
     python benchmarks/perf/node_latency.py --baseline
     python benchmarks/perf/node_latency.py --versus-relay --seconds 20 --rounds 2
+    python benchmarks/perf/node_latency.py --side-by-side --seconds 20 --rounds 3
     python benchmarks/perf/node_latency.py --cells 4 --seconds 100 --warmup-s 65
 """
 
@@ -40,6 +45,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -105,7 +111,14 @@ def main() -> int:
         action="store_true",
         help="run the relay and the node alternately; print the node/relay ratios",
     )
-    ap.add_argument("--rounds", type=int, default=2, help="relay+node pairs with --versus-relay")
+    ap.add_argument(
+        "--side-by-side",
+        action="store_true",
+        help="run the relay and the node at once on the same input; print the ratios",
+    )
+    ap.add_argument(
+        "--rounds", type=int, default=2, help="relay+node pairs (--versus-relay, --side-by-side)"
+    )
     args = ap.parse_args()
     if args.battery is None:
         name = "lfp_12v6ah.yaml" if args.cells else "sla_12v5ah.yaml"
@@ -121,6 +134,8 @@ def main() -> int:
     try:
         if args.versus_relay:
             return versus_relay(args, env)
+        if args.side_by_side:
+            return side_by_side(args, env)
         if not args.cells:
             return 0 if measure(args, env, 0) is not None else 1
         pack = measure(args, env, 0)
@@ -151,36 +166,53 @@ def versus_relay(args: argparse.Namespace, env: dict[str, str]) -> int:
             if run is None:
                 return 1
             runs.append(run)
+    print_ratios(args, "alternately", node, relay)
+    return 0
+
+
+def print_ratios(args: argparse.Namespace, how: str, node: list[Run], relay: list[Run]) -> None:
+    """The node/relay ratios of the sums over the rounds, against issue 28's targets."""
     cpu_node, cpu_relay = (sum(r.cpu_pct for r in runs) for runs in (node, relay))
     p99_node, p99_relay = (sum(r.p99_ms for r in runs) for runs in (node, relay))
     rate = f", filter_rate_hz {args.filter_rate_hz:g}" if args.filter_rate_hz > 0 else ""
-    print(f"node / relay over {args.rounds} rounds, {args.estimator}{rate}:")
+    print(f"node / relay {how} over {len(node)} rounds, {args.estimator}{rate}:")
     print(f"  CPU {cpu_node / cpu_relay:.2f} (target <= 1.3)")
     print(f"  p99 latency {p99_node / p99_relay:.2f} (target <= 2)")
     print(
         f"  lost: node {sum(r.lost for r in node)}, relay {sum(r.lost for r in relay)} "
         "(target: none the relay did not lose)"
     )
+
+
+def side_by_side(args: argparse.Namespace, env: dict[str, str]) -> int:
+    """The relay and the node at once on one input stream, ``--rounds`` times; the ratios of
+    the sums over the rounds, and each round's."""
+    relay: list[Run] = []
+    node: list[Run] = []
+    for _ in range(args.rounds):
+        runs = measure_all(args, env, 0, ("relay", "node"))
+        if runs is None:
+            return 1
+        relay.append(runs[0])
+        node.append(runs[1])
+        print(f"  this round: CPU node / relay {runs[1].cpu_pct / runs[0].cpu_pct:.2f}")
+    print_ratios(args, "side by side", node, relay)
     return 0
 
 
-def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> Run | None:
-    """One run of the node; prints its numbers and returns them, None when it did not come
-    up. ``n_cells``: cell voltages per message (0: none, as a bridge without
-    a BMS sends)."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from sensor_msgs.msg import BatteryState
+#: Where each process under measurement publishes, relative to the run's namespace.
+_OUTPUT_TOPIC = {"node": "battery/soc", "relay": "relay/soc"}
 
-    from soc_estimator_ros.replay.live import RELIABLE, state_message
 
-    ns = f"/bench_{os.getpid()}_{next(_RUN_IDS)}"  # a fresh namespace: no stale peer matches
-    exe = Path(sys.executable).parent / "soc_estimator_node"
+def command(args: argparse.Namespace, which: str, ns: str) -> list[str]:
+    """The command line of the node or the relay (``which``) in namespace ``ns``."""
+    remap = ["--ros-args", "-r", f"__ns:={ns}"]
+    if which == "relay":
+        relay = str(Path(__file__).with_name("relay_node.py"))
+        return [sys.executable, relay, *remap, "-r", f"battery/soc:={_OUTPUT_TOPIC['relay']}"]
     cmd = [
-        str(exe),
-        "--ros-args",
-        "-r",
-        f"__ns:={ns}",
+        str(Path(sys.executable).parent / "soc_estimator_node"),
+        *remap,
         "-p",
         f"battery_file:={args.battery}",
         "-p",
@@ -198,26 +230,64 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> Run 
     ]
     if args.cells:  # both runs on the same pack: the file at N cells
         cmd += ["-p", f"cells_in_series:={args.cells}"]
-    if args.baseline:
-        cmd = [sys.executable, str(Path(__file__).with_name("relay_node.py")), *cmd[1:4]]
-    node_proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    return cmd
+
+
+def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> Run | None:
+    """One run of the node (the relay with ``--baseline``); prints its numbers and returns
+    them, None when it did not come up. ``n_cells``: cell voltages per message (0: none, as
+    a bridge without a BMS sends)."""
+    runs = measure_all(args, env, n_cells, ("relay",) if args.baseline else ("node",))
+    return None if runs is None else runs[0]
+
+
+def measure_all(
+    args: argparse.Namespace, env: dict[str, str], n_cells: int, which: tuple[str, ...]
+) -> list[Run] | None:
+    """One run of each process in ``which`` ("node", "relay"), all at once on the same input
+    stream; prints their numbers and returns them in that order, None when one did not come
+    up."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import BatteryState
+
+    from soc_estimator_ros.replay.live import RELIABLE, state_message
+
+    ns = f"/bench_{os.getpid()}_{next(_RUN_IDS)}"  # a fresh namespace: no stale peer matches
+    procs = [
+        subprocess.Popen(
+            command(args, w, ns), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        )
+        for w in which
+    ]
     io = rclpy.create_node("bench_io", namespace=ns)
     pub = io.create_publisher(BatteryState, "battery/state", RELIABLE)
-    received: dict[int, int] = {}
+    received: list[dict[int, int]] = [{} for _ in which]
 
-    def on_soc(msg: BatteryState) -> None:
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        received[stamp] = time.monotonic_ns()
+    def on_output(into: dict[int, int]) -> Any:
+        def on_soc(msg: BatteryState) -> None:
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            into[stamp] = time.monotonic_ns()
 
-    io.create_subscription(BatteryState, "battery/soc", on_soc, RELIABLE)
+        return on_soc
+
+    outputs = [
+        io.create_subscription(BatteryState, _OUTPUT_TOPIC[w], on_output(into), RELIABLE)
+        for w, into in zip(which, received, strict=True)
+    ]
     executor = SingleThreadedExecutor()
     executor.add_node(io)
     try:
         end = time.monotonic() + 20.0
-        while pub.get_subscription_count() < 1 or io.count_publishers(f"{ns}/battery/soc") < 1:
+        # Matched, not only discovered: an output published before its writer matched this
+        # reader is lost (volatile QoS), which is the start's race, not the node's loss.
+        while pub.get_subscription_count() < len(which) or any(
+            sub.get_publisher_count() < 1 for sub in outputs
+        ):
             executor.spin_once(timeout_sec=0.05)
-            if time.monotonic() > end or node_proc.poll() is not None:
-                err = node_proc.stderr.read().decode() if node_proc.poll() is not None else ""
+            down = [p for p in procs if p.poll() is not None]
+            if time.monotonic() > end or down:
+                err = down[0].stderr.read().decode() if down else ""
                 print(f"node_latency: the node did not come up\n{err}")
                 return None
         period_ns = int(1e9 / args.rate_hz)
@@ -225,12 +295,13 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> Run 
         sent: dict[int, int] = {}  # stamp -> monotonic publish time
         # Stamps: the wall clock of the send (a live bridge), so the node's stale check passes.
         t_next = time.monotonic_ns()
-        ticks0 = ticks_t0 = None
+        ticks0: list[int] | None = None
+        ticks_t0 = 0.0
         for k in range(n):
             while time.monotonic_ns() < t_next:
                 executor.spin_once(timeout_sec=max(0.0, (t_next - time.monotonic_ns()) * 1e-9))
             if ticks0 is None and k >= args.warmup_s * args.rate_hz:
-                ticks0, ticks_t0 = cpu_ticks(node_proc.pid), time.monotonic()
+                ticks0, ticks_t0 = [cpu_ticks(p.pid) for p in procs], time.monotonic()
             stamp = time.time_ns()
             current = 3.0 if (k // 200) % 2 else 12.0  # 2-s load steps
             if args.cells:  # at rest: every cell updated once the rest has lasted 60 s
@@ -242,51 +313,64 @@ def measure(args: argparse.Namespace, env: dict[str, str], n_cells: int) -> Run 
             pub.publish(msg)
             sent[stamp] = time.monotonic_ns()
             t_next += period_ns
-        window_s = time.monotonic() - (ticks_t0 or time.monotonic())
-        ticks1 = cpu_ticks(node_proc.pid)
+        window_s = time.monotonic() - ticks_t0 if ticks0 is not None else 0.0
+        ticks1 = [cpu_ticks(p.pid) for p in procs]
         executor.spin_once(timeout_sec=0.5)
         end = time.monotonic() + 2.0
-        while len(received) < len(sent) and time.monotonic() < end:
+        while any(len(r) < len(sent) for r in received) and time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
-        rss = peak_rss_mib(node_proc.pid)
+        rss = [peak_rss_mib(p.pid) for p in procs]
     finally:
-        node_proc.send_signal(signal.SIGINT)
-        try:
-            node_proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            node_proc.kill()
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        for proc in procs:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
         executor.shutdown()
         io.destroy_node()
         Path(f"/tmp/soc_bench_{os.getpid()}.yaml").unlink(missing_ok=True)
 
     stamps = sorted(sent)
     steady = stamps[int(args.warmup_s * args.rate_hz) :]
-    lat_ms = np.array([(received[s] - sent[s]) / 1e6 for s in steady if s in received])
-    # With a publish rate the node publishes the latest estimate on a timer: not every stamp.
-    lost = sum(1 for s in stamps if s not in received) if args.publish_rate_hz == 0 else 0
     hz = os.sysconf("SC_CLK_TCK")
-    cpu_pct = 100.0 * (ticks1 - (ticks0 or ticks1)) / hz / window_s if window_s > 0 else 0.0
-    what = "relay_node.py (baseline)" if args.baseline else f"soc_estimator_node, {args.estimator}"
-    if not args.baseline and args.filter_rate_hz > 0:
-        what += f", filter_rate_hz {args.filter_rate_hz:g}"
-    if args.cells:
-        what += f", {n_cells} cell voltages" if n_cells else ", no cell voltages"
-    print(
-        f"{what}, {args.rate_hz:g} Hz input for "
-        f"{args.seconds:g} s ({len(steady)} samples after a {args.warmup_s:g}-s warm-up)"
-    )
-    print(
-        f"latency ms: p50 {np.median(lat_ms):.2f}  p99 {np.percentile(lat_ms, 99):.2f}  "
-        f"max {lat_ms.max():.2f}"
-    )
-    if args.publish_rate_hz == 0:
-        print(f"lost: {lost} of {len(stamps)}")
-    else:
-        rate = f"publish_rate_hz {args.publish_rate_hz:g}"
-        print(f"outputs: {len(received)} for {len(stamps)} inputs ({rate})")
-    print(f"node CPU: {cpu_pct:.1f} % of one core")
-    print(f"node peak RSS: {rss:.1f} MiB")
-    return Run(cpu_pct=cpu_pct, p99_ms=float(np.percentile(lat_ms, 99)), lost=lost)
+    runs = []
+    for i, w in enumerate(which):
+        got = received[i]
+        lat_ms = np.array([(got[s] - sent[s]) / 1e6 for s in steady if s in got])
+        # With a publish rate the node publishes the latest estimate on a timer: not every
+        # stamp. The relay republishes every one.
+        every = w == "relay" or args.publish_rate_hz == 0
+        missing = [k for k, s in enumerate(stamps) if s not in got] if every else []
+        lost = len(missing)
+        busy_s = (ticks1[i] - ticks0[i]) / hz if ticks0 is not None else 0.0
+        cpu_pct = 100.0 * busy_s / window_s if window_s > 0 else 0.0
+        what = (
+            "relay_node.py (baseline)" if w == "relay" else f"soc_estimator_node, {args.estimator}"
+        )
+        if w == "node" and args.filter_rate_hz > 0:
+            what += f", filter_rate_hz {args.filter_rate_hz:g}"
+        if args.cells:
+            what += f", {n_cells} cell voltages" if n_cells else ", no cell voltages"
+        print(
+            f"{what}, {args.rate_hz:g} Hz input for "
+            f"{args.seconds:g} s ({len(steady)} samples after a {args.warmup_s:g}-s warm-up)"
+        )
+        print(
+            f"latency ms: p50 {np.median(lat_ms):.2f}  p99 {np.percentile(lat_ms, 99):.2f}  "
+            f"max {lat_ms.max():.2f}"
+        )
+        if every:
+            which = f" (message {', '.join(map(str, missing[:5]))})" if 0 < lost <= 5 else ""
+            print(f"lost: {lost} of {len(stamps)}{which}")
+        else:
+            rate = f"publish_rate_hz {args.publish_rate_hz:g}"
+            print(f"outputs: {len(got)} for {len(stamps)} inputs ({rate})")
+        print(f"node CPU: {cpu_pct:.1f} % of one core")
+        print(f"node peak RSS: {rss[i]:.1f} MiB")
+        runs.append(Run(cpu_pct=cpu_pct, p99_ms=float(np.percentile(lat_ms, 99)), lost=lost))
+    return runs
 
 
 if __name__ == "__main__":
