@@ -16,7 +16,8 @@ Topics, parameters, services and persistence are documented in docs/node.md. In 
   ``publish_rate_hz`` (1 Hz when 0) with status UNKNOWN and the last SoC, diagnostics ERROR;
 * run-time control: parameter ``estimator`` (switch), ``reset_soc_to``, service
   ``~/reset_soc_from_ocv``, ``mission_power_w``, the ``low_soc_*`` levels; the state is saved
-  every ``save_period_s`` and on shutdown.
+  every ``save_period_s`` (written on the saver's thread, ``node/state_saver.py``) and on
+  shutdown.
 
 The callbacks only convert and delegate; parameters are validated in one callback and applied
 in another (as ros2/demos do). All tracker access is serialized by one lock, so the node is safe
@@ -119,6 +120,9 @@ class SocEstimatorNode(Node):
             self._setup()
         except BaseException:
             self._destroyed = True
+            saver: StateSaver | None = getattr(self, "_saver", None)
+            if saver is not None:  # built before the failure: stop its thread
+                saver.close(SAVE_TIMEOUT_S)
             Node.destroy_node(self)
             raise
 
