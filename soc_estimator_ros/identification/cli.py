@@ -105,27 +105,15 @@ def identify_tests(
             f"--rate-test gives {len(rate_tests)} rate test(s) for {len(tests)} tests"
         )
     rates: Sequence[BatterySeries | None] = rate_tests or [None] * len(tests)
-    if len(tests) == 1:
-        res = identify(
-            tests[0],
-            template,
-            capacity_ah,
-            slow,
-            progress,
-            rates[0],
-            load_test=load_test,
-            capacity_measured=capacity_measured,
-        )
-        if temperatures_c is not None:
-            res.temperature_c = temperatures_c[0]
-        battery = _with_tunings(res.battery, res, [res], rates[0], load_test, tuning, progress)
-        return battery, [res]
-    temps = temperatures_c or [test_temperature_c(t) for t in tests]
-    if any(math.isnan(t) for t in temps):
-        raise IdentificationError(
-            "a test has no temperature sensor: give every test's temperature (--temperature-c)"
-        )
-    ref = int(np.argmin([abs(t - 25.0) for t in temps]))
+    temps: list[float] = []
+    ref = 0  # the reference test: the one, or the one nearest 25 degC
+    if len(tests) > 1:
+        temps = temperatures_c or [test_temperature_c(t) for t in tests]
+        if any(math.isnan(t) for t in temps):
+            raise IdentificationError(
+                "a test has no temperature sensor: give every test's temperature (--temperature-c)"
+            )
+        ref = int(np.argmin([abs(t - 25.0) for t in temps]))
     first = identify(
         tests[ref],
         template,
@@ -136,6 +124,13 @@ def identify_tests(
         load_test=load_test,
         capacity_measured=capacity_measured,
     )
+    if len(tests) == 1:
+        if temperatures_c is not None:
+            first.temperature_c = temperatures_c[0]
+        battery = _with_tunings(
+            first.battery, first, [first], rates[0], load_test, tuning, progress
+        )
+        return battery, [first]
     results: list[IdentificationResult] = []
     for n, test in enumerate(tests):
         if n == ref:
