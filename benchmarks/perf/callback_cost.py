@@ -43,6 +43,7 @@ def main() -> int:
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id))
 
     import rclpy
+    from node_latency import load_step_current_a, pack_voltage_v  # this script's directory
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import BatteryState
 
@@ -68,8 +69,8 @@ def main() -> int:
             node_us: list[float] = []
             bare_us: list[float] = []
             for _ in range(args.messages):
-                current = 3.0 if (k // 200) % 2 else 12.0  # 2-s load steps at 100 Hz
-                msg = state_message(t0_ns + k * 10_000_000, 12.6 - 0.02 * current, current, 25.0)
+                current = load_step_current_a(k)  # node_latency.py's input
+                msg = state_message(t0_ns + k * 10_000_000, pack_voltage_v(current), current, 25.0)
                 k += 1
                 for call, into in ((node._on_state, node_us), (bare.publish, bare_us)):
                     start = time.thread_time_ns()

@@ -66,6 +66,17 @@ class Run:
     lost: int
 
 
+def load_step_current_a(k: int) -> float:
+    """The benchmarks' input current at message ``k`` (A, discharge positive): 2-s steps
+    between 12 and 3 A at 100 Hz."""
+    return 3.0 if (k // 200) % 2 else 12.0
+
+
+def pack_voltage_v(current_a: float) -> float:
+    """The input's pack voltage at ``current_a``: 12.6 V less 20 mOhm's drop."""
+    return 12.6 - 0.02 * current_a
+
+
 def cpu_ticks(pid: int) -> int:
     """utime + stime of a process, in clock ticks."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -305,12 +316,12 @@ def measure_all(
             if ticks0 is None and k >= args.warmup_s * args.rate_hz:
                 ticks0, ticks_t0 = [cpu_ticks(p.pid) for p in procs], time.monotonic()
             stamp = time.time_ns()
-            current = 3.0 if (k // 200) % 2 else 12.0  # 2-s load steps
+            current = load_step_current_a(k)
             if args.cells:  # at rest: every cell updated once the rest has lasted 60 s
                 current = 0.3
-            msg = state_message(stamp, 12.6 - 0.02 * current, current, 25.0)
+            msg = state_message(stamp, pack_voltage_v(current), current, 25.0)
             if n_cells:  # cells a few mV apart, as a real pack's
-                cell_v = (12.6 - 0.02 * current) / n_cells
+                cell_v = pack_voltage_v(current) / n_cells
                 msg.cell_voltage = [cell_v + 0.002 * (j - n_cells / 2) for j in range(n_cells)]
             pub.publish(msg)
             sent[stamp] = time.monotonic_ns()
