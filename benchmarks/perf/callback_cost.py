@@ -17,6 +17,7 @@ calls alternate, so a slow spell of the machine weighs on both. Prints numbers a
 nothing. DDS stays on loopback with a domain id of its own.
 
     python benchmarks/perf/callback_cost.py [--messages 2000] [--sleep-ms 5] [--domain-id 78]
+        [--publish-rate-hz 10]
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ def main() -> int:
     ap.add_argument("--estimator", default="hybrid")
     ap.add_argument("--battery", type=Path, default=ROOT / "config" / "sla_12v5ah.yaml")
     ap.add_argument("--filter-rate-hz", type=float, default=10.0)
+    ap.add_argument("--publish-rate-hz", type=float, default=0.0, help="0: an output per message")
     ap.add_argument("--messages", type=int, default=2000, help="per regime")
     ap.add_argument("--sleep-ms", type=float, default=5.0, help="between calls, cold regime")
     ap.add_argument("--domain-id", type=int, default=78)
@@ -43,7 +45,11 @@ def main() -> int:
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id))
 
     import rclpy
-    from node_latency import load_step_current_a, pack_voltage_v  # this script's directory
+    from node_latency import (  # this script's directory
+        load_step_current_a,
+        node_rates,
+        pack_voltage_v,
+    )
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import BatteryState
 
@@ -59,6 +65,7 @@ def main() -> int:
             Parameter("initial_soc", value=0.9),
             Parameter("state_file", value=str(state_file)),
             Parameter("filter_rate_hz", value=args.filter_rate_hz),
+            Parameter("publish_rate_hz", value=args.publish_rate_hz),
         ]
     )
     bare = node.create_publisher(BatteryState, "relay/soc", RELIABLE)
@@ -85,8 +92,10 @@ def main() -> int:
                 f"bare publish mean {b.mean():6.1f} us (median {np.median(b):6.1f}); "
                 f"node - publish {n.mean() - b.mean():6.1f} us"
             )
-        rate = f", filter_rate_hz {args.filter_rate_hz:g}" if args.filter_rate_hz > 0 else ""
-        print(f"({args.estimator}{rate}, {args.battery.name}, {args.messages} messages a regime)")
+        print(
+            f"({args.estimator}{node_rates(args)}, {args.battery.name}, "
+            f"{args.messages} messages a regime)"
+        )
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

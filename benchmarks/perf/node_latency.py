@@ -21,6 +21,10 @@ same window of the machine, so a slow spell of the VM, which moves alternate run
 third, weighs on both alike. It is the steadier reading but not the same quantity: beside the
 node the relay costs more, and the ratio reads about 0.15 lower than alternately
 (docs/benchmarks.md); the issue's target is set on each process alone.
+``--publish-rate-hz R`` runs the node at that ``publish_rate_hz``: an output for the sample on
+each tick of ``1 / R`` s (``node/output_rate.py``); latency is then measured on those outputs,
+and the node's loss is the inputs its diagnostics did not count as accepted plus the outputs
+missing from its grid.
 ``--cells N`` (issue 25) runs the node twice in one invocation on the same pack (the LFP file
 unless ``--battery``, its ``cells_in_series`` set to N): first without ``cell_voltage``, then
 with N cell voltages in every message, and prints both and the CPU ratio (target <= 1.5 at
@@ -187,14 +191,19 @@ def print_ratios(args: argparse.Namespace, how: str, node: list[Run], relay: lis
     """The node/relay ratios of the sums over the rounds, against issue 28's targets."""
     cpu_node, cpu_relay = (sum(r.cpu_pct for r in runs) for runs in (node, relay))
     p99_node, p99_relay = (sum(r.p99_ms for r in runs) for runs in (node, relay))
-    rate = f", filter_rate_hz {args.filter_rate_hz:g}" if args.filter_rate_hz > 0 else ""
-    print(f"node / relay {how} over {len(node)} rounds, {args.estimator}{rate}:")
+    print(f"node / relay {how} over {len(node)} rounds, {args.estimator}{node_rates(args)}:")
     print(f"  CPU {cpu_node / cpu_relay:.2f} (target <= 1.3)")
     print(f"  p99 latency {p99_node / p99_relay:.2f} (target <= 2)")
     print(
         f"  lost: node {sum(r.lost for r in node)}, relay {sum(r.lost for r in relay)} "
         "(target: none the relay did not lose)"
     )
+
+
+def node_rates(args: argparse.Namespace) -> str:
+    """The node's filter and publish rates as printed beside its name ("" when neither)."""
+    rates = [(name, getattr(args, name)) for name in ("filter_rate_hz", "publish_rate_hz")]
+    return "".join(f", {name} {value:g}" for name, value in rates if value > 0)
 
 
 def side_by_side(args: argparse.Namespace, env: dict[str, str]) -> int:
@@ -261,6 +270,7 @@ def measure_all(
     stream; prints their numbers and returns them in that order, None when one did not come
     up."""
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import BatteryState
 
@@ -288,6 +298,17 @@ def measure_all(
         io.create_subscription(BatteryState, _OUTPUT_TOPIC[w], on_output(into), RELIABLE)
         for w, into in zip(which, received, strict=True)
     ]
+    # With a publish rate the node's outputs are one per tick, not one per input: its input
+    # loss is then read from its own count of accepted samples (its diagnostics).
+    accepted: list[tuple[float, int]] = []  # (monotonic receive time, samples_accepted)
+
+    def on_diagnostics(arr: DiagnosticArray) -> None:
+        for status in arr.status:
+            for kv in status.values:
+                if kv.key == "samples_accepted":
+                    accepted.append((time.monotonic(), int(kv.value)))
+
+    io.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(io)
     try:
@@ -332,6 +353,10 @@ def measure_all(
         end = time.monotonic() + 2.0
         while any(len(r) < len(sent) for r in received) and time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
+        if args.publish_rate_hz > 0 and "node" in which:  # a count made after the last input
+            after, end = time.monotonic(), time.monotonic() + 3.0  # diagnostics: 1 Hz
+            while not (accepted and accepted[-1][0] > after) and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
         rss = [peak_rss_mib(p.pid) for p in procs]
     finally:
         for proc in procs:
@@ -352,18 +377,25 @@ def measure_all(
     for i, w in enumerate(which):
         got = received[i]
         lat_ms = np.array([(got[s] - sent[s]) / 1e6 for s in steady if s in got])
-        # With a publish rate the node publishes the latest estimate on a timer: not every
-        # stamp. The relay republishes every one.
+        # The relay republishes every stamp, the node too without a publish rate; with one,
+        # the sample on each tick of its grid (node/output_rate.py).
         every = w == "relay" or args.publish_rate_hz == 0
         missing = [k for k, s in enumerate(stamps) if s not in got] if every else []
         lost = len(missing)
+        if not every:
+            n_accepted = accepted[-1][1] if accepted else 0
+            # An output lost on its way shows as a gap of two ticks or more between outputs
+            # (of inputs: after the input ends, the stale output comes at the same rate).
+            ticks = np.diff(sorted(set(got) & set(sent))) * 1e-9 * args.publish_rate_hz
+            lost_outputs = int(np.sum(np.round(ticks) - 1))
+            lost = len(stamps) - n_accepted + lost_outputs
         busy_s = (ticks1[i] - ticks0[i]) / hz if ticks0 is not None else 0.0
         cpu_pct = 100.0 * busy_s / window_s if window_s > 0 else 0.0
         what = (
             "relay_node.py (baseline)" if w == "relay" else f"soc_estimator_node, {args.estimator}"
         )
-        if w == "node" and args.filter_rate_hz > 0:
-            what += f", filter_rate_hz {args.filter_rate_hz:g}"
+        if w == "node":
+            what += node_rates(args)
         if args.cells:
             what += f", {n_cells} cell voltages" if n_cells else ", no cell voltages"
         print(
@@ -375,11 +407,14 @@ def measure_all(
             f"max {lat_ms.max():.2f}"
         )
         if every:
-            which = f" (message {', '.join(map(str, missing[:5]))})" if 0 < lost <= 5 else ""
-            print(f"lost: {lost} of {len(stamps)}{which}")
+            named = f" (message {', '.join(map(str, missing[:5]))})" if 0 < lost <= 5 else ""
+            print(f"lost: {lost} of {len(stamps)}{named}")
         else:
             rate = f"publish_rate_hz {args.publish_rate_hz:g}"
-            print(f"outputs: {len(got)} for {len(stamps)} inputs ({rate})")
+            print(
+                f"outputs: {len(set(got) & set(sent))} for {len(stamps)} inputs ({rate}); lost: "
+                f"{len(stamps) - n_accepted} inputs not accepted, {lost_outputs} outputs"
+            )
         print(f"node CPU: {cpu_pct:.1f} % of one core")
         print(f"node peak RSS: {rss[i]:.1f} MiB")
         runs.append(Run(cpu_pct=cpu_pct, p99_ms=float(np.percentile(lat_ms, 99)), lost=lost))

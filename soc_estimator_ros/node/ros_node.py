@@ -75,6 +75,7 @@ from ..tracking.persistence import (
 from ..units import NS_PER_S, CurrentSign, core_current_from, core_current_from_ros, stamp_to_ns
 from .diagnostics import Diagnostics
 from .housekeeping import Housekeeping
+from .output_rate import OutputRate
 from .parameters import (
     KNOWN_ESTIMATORS,
     LEVEL_PARAMETERS,
@@ -146,7 +147,6 @@ class SocEstimatorNode(Node):
         self._diagnostics = Diagnostics(self.tracker, self.battery_file, time.monotonic())
         self._log_times: dict[str, float] = {}
         self._published_seq = 0
-        self._pending_publish = False
         #: A filter step ran since the estimate vector was last published.
         self._pending_estimate = False
         self._saved_revision = 0
@@ -160,8 +160,7 @@ class SocEstimatorNode(Node):
         self.create_service(Trigger, "~/reset_soc_from_ocv", self._on_reset_from_ocv)
         self.create_service(Trigger, "~/reset_health", self._on_reset_health)
         self._publish_rate_hz: float = p("publish_rate_hz")
-        if self._publish_rate_hz > 0.0:
-            self.create_timer(1.0 / self._publish_rate_hz, self._on_publish_timer)
+        self._output_rate = OutputRate(self._publish_rate_hz) if self._publish_rate_hz else None
         save_period_s: float = 0.0
         self._saver: StateSaver | None = None
         if self.state_file is not None:
@@ -380,12 +379,13 @@ class SocEstimatorNode(Node):
                 self._log((pack,))
             result = self.tracker.process(sample, now_ns=now_ns, clock_ns=clock_ns)
             self._log(result.events)
-            if result.accepted:
+            est = result.estimate
+            if est is not None:
                 self._last_header = header
                 self._last_location, self._last_serial = location, serial_number
-                self._pending_publish = True
                 self._pending_estimate = self._pending_estimate or result.filtered
-                if self._publish_rate_hz <= 0.0:
+                rate = self._output_rate
+                if rate is None or rate.due(est.t_s, result.filtered):
                     self._publish_locked()
         return result.verdict
 
@@ -408,16 +408,10 @@ class SocEstimatorNode(Node):
                 log.info(event.message)
 
     # -- outputs ------------------------------------------------------------------------------
-    def _on_publish_timer(self) -> None:
-        with self._lock:
-            if self._pending_publish:
-                self._publish_locked()
-
     def _publish_locked(self) -> None:
         est, last = self.tracker.last_estimate, self.tracker.last_sample
         if est is None or last is None:
             return
-        self._pending_publish = False
         self._published_seq += 1
         capacity_ah, soh = self._learned_health()
         fields = estimate_state(

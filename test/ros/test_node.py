@@ -521,32 +521,32 @@ def test_source_clock_jumping_back_is_followed_after_the_stale_timeout(make_harn
     assert len(h.soc) == 12
 
 
-def test_use_sim_time_and_publish_rate(make_harness):
-    from rosgraph_msgs.msg import Clock as ClockMsg
-
-    h = make_harness(estimator="coulomb", use_sim_time=True, publish_rate_hz=10.0)
-    clock_pub = h.io.create_publisher(ClockMsg, "/clock", 10)
-    assert h.spin_until(lambda: clock_pub.get_subscription_count() >= 1)
-
-    def advance_to(t_ns: int) -> None:
-        msg = ClockMsg()
-        msg.clock.sec, msg.clock.nanosec = divmod(t_ns, S)
-        clock_pub.publish(msg)
-        h.spin_for(0.05)
-
-    advance_to(T0)
-    h.send([state_msg(T0 + k * S // 100, 12.3, 1.0) for k in range(5)], expect_outputs=False)
-    assert h.node.tracker.gate.accepted_count == 5
-    for k in range(1, 6):  # 0.5 s of simulated time: the 10 Hz timer fires, one new estimate
-        advance_to(T0 + k * S // 10)
-    assert h.spin_until(lambda: len(h.soc) >= 1, 2.0)
+def test_publish_rate_publishes_each_filter_step_with_the_next_sample(make_harness):
+    """``publish_rate_hz`` 10 at 100 Hz input, ``filter_rate_hz`` 10: an output at most every
+    0.1 s of sample time, with its own sample's header and SoC, right after it; the first
+    sample (a step), then the sample after each step (node/output_rate.py), each with the
+    step's estimate vector. Every sample is still estimated."""
+    h = make_harness(
+        estimator="coulomb", initial_soc="0.6", publish_rate_hz=10.0, filter_rate_hz=10.0
+    )
+    h.send([state_msg(T0 + k * S // 100, 12.3, 1.0) for k in range(45)], expect_outputs=False)
+    assert h.spin_until(lambda: len(h.soc) >= 5 and len(h.est) >= 5, 2.0)
     h.spin_for(0.1)
-    assert len(h.soc) == 1  # published once: only new estimates are published
+    published = [0, 11, 21, 31, 41]  # steps on 0, 10, 20, 30, 40
+    stamps = [m.header.stamp.sec * S + m.header.stamp.nanosec for m in h.soc]
+    assert stamps == [T0 + k * S // 100 for k in published]
+    assert len(h.est) == 5  # a filter step for each output
+    assert h.node.tracker.samples_used == 45
+    # The SoC each output carries is its own sample's: 1 A counted from 0.6 (the file's
+    # capacity; 1e-7: ``percentage`` is a float32, 6e-8 apart near 0.6).
+    capacity_as = h.node.battery.capacity_ah * 3600.0
+    for k, m in zip(published, h.soc, strict=True):
+        assert m.percentage == pytest.approx(0.6 - k * 0.01 / capacity_as, abs=1e-7)
+    # After a gap the first sample is a step: its estimate goes out with the next sample.
+    h.send([state_msg(T0 + 3 * S + k * S // 100, 12.3, 1.0) for k in range(2)], False)
+    assert h.spin_until(lambda: len(h.soc) >= 6, 2.0)
     last = h.soc[-1].header.stamp
-    assert last.sec * S + last.nanosec == T0 + 4 * S // 100
-    h.send([state_msg(T0 + S, 12.3, 1.0)], expect_outputs=False)
-    advance_to(T0 + 7 * S // 10)
-    assert h.spin_until(lambda: len(h.soc) >= 2, 2.0)
+    assert last.sec * S + last.nanosec == T0 + 3 * S + S // 100
 
 
 def test_clock_follows_use_sim_time_set_at_run_time(make_harness):
@@ -673,7 +673,7 @@ def test_one_housekeeping_timer_keeps_the_stale_output_diagnostics_and_saves(
         save_period_s=0.5,
     )
     timers = list(h.node.timers)
-    assert len(timers) == 2  # the 5 Hz publish timer (ROS clock) and the housekeeping timer
+    assert len(timers) == 1  # the housekeeping timer (a publish rate needs none of its own)
     assert len(list(h.node.waitables)) == 4
     h.send([state_msg(T0 + k * S // 10, 12.3, 1.0) for k in range(5)], expect_outputs=False)
     assert h.spin_until(state_file.exists, 5.0)  # saved within save_period_s of the samples
