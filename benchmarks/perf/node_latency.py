@@ -21,10 +21,10 @@ same window of the machine, so a slow spell of the VM, which moves alternate run
 third, weighs on both alike. It is the steadier reading but not the same quantity: beside the
 node the relay costs more, and the ratio reads about 0.15 lower than alternately
 (docs/benchmarks.md); the issue's target is set on each process alone.
-``--publish-rate-hz R`` runs the node at that ``publish_rate_hz``: an output for the sample on
-each tick of ``1 / R`` s (``node/output_rate.py``); latency is then measured on those outputs,
+``--publish-rate-hz R`` runs the node at that ``publish_rate_hz``: one output per ``1 / R`` s
+of the input's stamps (``node/output_rate.py``); latency is then measured on those outputs,
 and the node's loss is the inputs its diagnostics did not count as accepted plus the outputs
-missing from its grid.
+missing from that period.
 ``--cells N`` (issue 25) runs the node twice in one invocation on the same pack (the LFP file
 unless ``--battery``, its ``cells_in_series`` set to N): first without ``cell_voltage``, then
 with N cell voltages in every message, and prints both and the CPU ratio (target <= 1.5 at
@@ -298,7 +298,7 @@ def measure_all(
         io.create_subscription(BatteryState, _OUTPUT_TOPIC[w], on_output(into), RELIABLE)
         for w, into in zip(which, received, strict=True)
     ]
-    # With a publish rate the node's outputs are one per tick, not one per input: its input
+    # With a publish rate the node's outputs are one per period, not one per input: its input
     # loss is then read from its own count of accepted samples (its diagnostics).
     accepted: list[tuple[float, int]] = []  # (monotonic receive time, samples_accepted)
 
@@ -378,16 +378,16 @@ def measure_all(
         got = received[i]
         lat_ms = np.array([(got[s] - sent[s]) / 1e6 for s in steady if s in got])
         # The relay republishes every stamp, the node too without a publish rate; with one,
-        # the sample on each tick of its grid (node/output_rate.py).
+        # a sample a period (node/output_rate.py).
         every = w == "relay" or args.publish_rate_hz == 0
         missing = [k for k, s in enumerate(stamps) if s not in got] if every else []
         lost = len(missing)
         if not every:
             n_accepted = accepted[-1][1] if accepted else 0
-            # An output lost on its way shows as a gap of two ticks or more between outputs
+            # An output lost on its way shows as a gap of two periods or more between outputs
             # (of inputs: after the input ends, the stale output comes at the same rate).
-            ticks = np.diff(sorted(set(got) & set(sent))) * 1e-9 * args.publish_rate_hz
-            lost_outputs = int(np.sum(np.round(ticks) - 1))
+            periods = np.diff(sorted(set(got) & set(sent))) * 1e-9 * args.publish_rate_hz
+            lost_outputs = int(np.sum(np.round(periods) - 1))
             lost = len(stamps) - n_accepted + lost_outputs
         busy_s = (ticks1[i] - ticks0[i]) / hz if ticks0 is not None else 0.0
         cpu_pct = 100.0 * busy_s / window_s if window_s > 0 else 0.0
