@@ -163,8 +163,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "publish_rate_hz",
         0.0,
-        "output rate (Hz): at most this many battery/soc a second of sample time, each right "
-        "after the sample it carries (node/output_rate.py); 0 = on every accepted sample",
+        "output rate (Hz): battery/soc once per 1/rate s of sample time, right after the "
+        "sample it carries (node/output_rate.py); 0 = on every accepted sample",
         float_range=(0.0, 1000.0),
     ),
     ParamSpec(

@@ -32,14 +32,6 @@ import numpy as np
 PERIOD_SLACK_S = 1e-6
 
 
-def period_elapsed(t_s: float, since_s: float, period_s: float) -> bool:
-    """True when ``t_s`` is at least ``period_s`` after ``since_s`` (s, one time base), within
-    ``PERIOD_SLACK_S``: the rule of "at most once per period" on a sample stream, for the
-    filter steps here and the node's outputs (``node/output_rate.py``), so that at equal
-    rates the outputs fall on the filter steps."""
-    return t_s - since_s + PERIOD_SLACK_S >= period_s
-
-
 def filter_period_s(rate_hz: float) -> float:
     """``TrackerConfig.filter_period_s`` of a filter rate (the node's ``filter_rate_hz``,
     ``soc_replay --filter-rate-hz``): 0 Hz is 0 s, a step on every sample."""
@@ -106,9 +98,9 @@ class Decimator:
         self._sum_v_v += voltage_v
         self._n += 1
         self._add_cells(cell_voltage_v)
-        if not period_elapsed(t_s, self._t_step_s, self.period_s):
-            return None
         length_s = t_s - self._t_step_s
+        if length_s + PERIOD_SLACK_S < self.period_s:
+            return None
         n = self._n
         cells: tuple[float, ...] = ()
         if self._cells_ok and self._sum_cells_v is not None:

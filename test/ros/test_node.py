@@ -521,28 +521,29 @@ def test_source_clock_jumping_back_is_followed_after_the_stale_timeout(make_harn
     assert len(h.soc) == 12
 
 
-def test_publish_rate_publishes_each_filter_step_with_the_next_sample(make_harness):
-    """``publish_rate_hz`` 10 at 100 Hz input, ``filter_rate_hz`` 10: an output at most every
+def test_publish_rate_publishes_once_a_period_and_never_on_a_filter_step(make_harness):
+    """``publish_rate_hz`` 10 at 100 Hz input, ``filter_rate_hz`` 10: an output once per
     0.1 s of sample time, with its own sample's header and SoC, right after it; the first
-    sample (a step), then the sample after each step (node/output_rate.py), each with the
-    step's estimate vector. Every sample is still estimated."""
+    sample, then one from half a period before each tick (node/output_rate.py), which here
+    falls between the filter steps; each step's vector with the next output. Every sample is
+    still estimated."""
     h = make_harness(
         estimator="coulomb", initial_soc="0.6", publish_rate_hz=10.0, filter_rate_hz=10.0
     )
     h.send([state_msg(T0 + k * S // 100, 12.3, 1.0) for k in range(45)], expect_outputs=False)
-    assert h.spin_until(lambda: len(h.soc) >= 5 and len(h.est) >= 5, 2.0)
+    assert h.spin_until(lambda: len(h.soc) >= 5 and len(h.est) >= 4, 2.0)
     h.spin_for(0.1)
-    published = [0, 11, 21, 31, 41]  # steps on 0, 10, 20, 30, 40
+    published = [0, 5, 15, 25, 35]  # filter steps on 0, 10, 20, 30, 40
     stamps = [m.header.stamp.sec * S + m.header.stamp.nanosec for m in h.soc]
     assert stamps == [T0 + k * S // 100 for k in published]
-    assert len(h.est) == 5  # a filter step for each output
+    assert len(h.est) == 4  # the steps on 0, 10, 20, 30; the one on 40 waits for an output
     assert h.node.tracker.samples_used == 45
     # The SoC each output carries is its own sample's: 1 A counted from 0.6 (the file's
     # capacity; 1e-7: ``percentage`` is a float32, 6e-8 apart near 0.6).
     capacity_as = h.node.battery.capacity_ah * 3600.0
     for k, m in zip(published, h.soc, strict=True):
         assert m.percentage == pytest.approx(0.6 - k * 0.01 / capacity_as, abs=1e-7)
-    # After a gap the first sample is a step: its estimate goes out with the next sample.
+    # After a gap the first sample is a filter step: its output goes with the next sample.
     h.send([state_msg(T0 + 3 * S + k * S // 100, 12.3, 1.0) for k in range(2)], False)
     assert h.spin_until(lambda: len(h.soc) >= 6, 2.0)
     last = h.soc[-1].header.stamp
