@@ -20,7 +20,15 @@ sample, one input period later (10 ms at 100 Hz), which carries the step's estim
 that sample's counted charge; so the step's time (a UKF step: several times a message's
 handling) is in no output's latency, as the runtime predictions are computed after the output
 they belong to. Where every sample is a step (no filter rate, or input no faster than it),
-the due sample itself is published. ROS-free: the node passes the tracker's sample time
+the due sample itself is published.
+
+**Deferred work goes on a sample without an output** (:attr:`OutputRate.takes_deferred_work`):
+the runtime prediction due once a second (``RuntimeMonitor.flush``, about 1 ms) run right after
+an output's publish still made that output arrive about 1 ms later (a benchmark round here: the
+one output in ten that carried it, 1.2-1.3 ms of callback against 0.26 ms, was every one of the
+six latest outputs; docs/benchmarks.md). So it runs on the next sample that publishes nothing,
+10 ms later at 100 Hz, or, where every sample is published (input no faster than the rate),
+after the output as before. ROS-free: the node passes the tracker's sample time
 (``Estimate.t_s``) and ``StepResult.filtered``.
 """
 
@@ -42,12 +50,27 @@ class OutputRate:
         self.period_s = 1.0 / rate_hz
         self._tick_s: float | None = None  # the next output's tick on the grid
         self._after_between = False  # the last sample was between filter steps
+        self._published = (False, False)  # whether the last two samples were, oldest first
 
     def due(self, t_s: float, filter_step: bool) -> bool:
         """True when the sample at ``t_s`` (s, the tracker's time base, increasing; every
         accepted sample, in order) is to be published: the first sample, then the first one
         from half a period before each tick, but for a filter step (``filter_step``) that
         follows a sample between steps, whose output is the next sample's."""
+        publish = self._due(t_s, filter_step)
+        self._published = (self._published[1], publish)
+        return publish
+
+    @property
+    def takes_deferred_work(self) -> bool:
+        """Whether work kept off the outputs (a due runtime prediction) runs after the sample
+        :meth:`due` was last asked about: one not published, or an output that follows
+        another (a stream with no sample between outputs, where waiting would wait for
+        ever)."""
+        before, last = self._published
+        return not last or before
+
+    def _due(self, t_s: float, filter_step: bool) -> bool:
         after_between, self._after_between = self._after_between, not filter_step
         tick = self._tick_s
         if tick is not None and t_s < tick - 0.5 * self.period_s - WINDOW_SLACK_S:

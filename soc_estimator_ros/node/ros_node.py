@@ -238,7 +238,7 @@ class SocEstimatorNode(Node):
             idle_current_a=p("idle_current_a"),
             charging_current_a=p("charging_current_a"),
             levels=levels,
-            deferred=True,  # computed after the SoC is published (_publish_locked)
+            deferred=True,  # computed off the outputs (_publish_runtime_locked)
         )
         config = TrackerConfig(
             estimator=name,
@@ -387,6 +387,8 @@ class SocEstimatorNode(Node):
                 rate = self._output_rate
                 if rate is None or rate.due(est.t_s, result.filtered):
                     self._publish_locked()
+                if rate is None or rate.takes_deferred_work:
+                    self._publish_runtime_locked()
         return result.verdict
 
     def _log(self, events: Sequence[Event]) -> None:
@@ -445,8 +447,11 @@ class SocEstimatorNode(Node):
                         self.tracker.last_cells,
                     )
                 )
-        # A prediction due on this sample is computed only now, its SoC out (RuntimeConfig's
-        # ``deferred``): the same numbers, without the 0.5 ms in that message's latency.
+
+    def _publish_runtime_locked(self) -> None:
+        """The runtime prediction due, computed only now (RuntimeConfig's ``deferred``): the
+        same numbers as on its own sample, after that sample's SoC is out or, with a publish
+        rate, on a sample without an output (node/output_rate.py)."""
         report = self.tracker.runtime.flush()
         if report is not None and self._runtime_pub.get_subscription_count():
             self._runtime_pub.publish(runtime_msg(report))

@@ -11,10 +11,10 @@ estimate (so the node, ``soc_replay`` and ``soc_replay --live`` see the same), a
 * every ``predict_period_s`` of sample time (0: never; ``soc_replay`` without CSV or plot),
   a :class:`RuntimeReport`: time to empty and its std, time to full, state of power. Its
   inputs are taken on the sample it is due (:class:`PredictionInput`); it is computed there,
-  or, ``deferred`` (the node), by :meth:`RuntimeMonitor.flush` once that sample's SoC is
-  published: the same numbers, and the one message a second that carries a prediction is not
-  the one whose SoC waits 0.5 ms for it (docs/benchmarks.md, "Where the time goes in the
-  node").
+  or, ``deferred`` (the node), by :meth:`RuntimeMonitor.flush` where no SoC output waits for
+  it (after that sample's output, or on a later sample without one: node/output_rate.py):
+  the same numbers, and no SoC message a second waits 0.5-1 ms for it (docs/benchmarks.md,
+  "Where the time goes in the node").
 
 It never changes the estimate except on FULL.
 """

@@ -550,6 +550,38 @@ def test_publish_rate_publishes_once_a_period_and_never_on_a_filter_step(make_ha
     assert last.sec * S + last.nanosec == T0 + 3 * S + S // 100
 
 
+def test_with_a_publish_rate_no_output_waits_for_a_runtime_prediction(make_harness):
+    """``publish_rate_hz`` 10 at 100 Hz input: the prediction due once a second of sample time
+    is computed on a sample that publishes no SoC, never in an output's callback
+    (node/output_rate.py), and none is lost: one a second, stamped with its own sample."""
+    h = make_harness(
+        estimator="coulomb", initial_soc="0.6", publish_rate_hz=10.0, filter_rate_hz=10.0
+    )
+    events: list[str] = []  # per sample: "sample", then "soc" and "prediction" as they happen
+    node, runtime = h.node, h.node.tracker.runtime
+    process, publish, flush = node.process_sample, node._soc_pub.publish, runtime.flush
+
+    def spy(what: str, call: Any) -> Any:
+        def wrapped(*args: Any, **kwargs: Any) -> Any:
+            out = call(*args, **kwargs)
+            if what != "prediction" or out is not None:
+                events.append(what)
+            return out
+
+        return wrapped
+
+    node.process_sample = lambda *a, **kw: (events.append("sample"), process(*a, **kw))[1]
+    node._soc_pub.publish = spy("soc", publish)
+    runtime.flush = spy("prediction", flush)
+    h.send([state_msg(T0 + k * S // 100, 12.3, 1.0) for k in range(350)], expect_outputs=False)
+    assert h.spin_until(lambda: events.count("sample") >= 350 and len(h.runtime) >= 4, 3.0)
+    per_sample = " ".join(events).split("sample")[1:]
+    assert sum("soc" in e for e in per_sample) == 36  # samples 0, 5, 15, ..., 345
+    assert not [e for e in per_sample if "soc" in e and "prediction" in e]
+    stamps = [decode_runtime(m)["stamp_s"] for m in h.runtime]
+    assert stamps == [(T0 + k * S) / S for k in range(4)]  # due on samples 0, 100, 200, 300
+
+
 def test_clock_follows_use_sim_time_set_at_run_time(make_harness):
     """The node reads the system clock without sim time and the /clock with it, also when
     ``use_sim_time`` is set after the start (the node keeps the parameter, not a per-message

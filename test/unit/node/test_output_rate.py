@@ -69,6 +69,33 @@ def test_after_a_gap_the_grid_restarts_from_the_next_sample():
     assert [rate.due(t, True) for t in (5.07, 5.08, 5.12)] == [False, True, False]
 
 
+def deferred_work(rate: OutputRate, t_s: list[float]) -> tuple[list[int], list[int]]:
+    """The samples published and those deferred work runs after (a step on every sample)."""
+    out, work = [], []
+    for k, t in enumerate(t_s):
+        if rate.due(t, True):
+            out.append(k)
+        if rate.takes_deferred_work:
+            work.append(k)
+    return out, work
+
+
+def test_deferred_work_runs_on_samples_without_an_output():
+    # 100 Hz at 10 Hz: on every sample but the outputs, so a prediction due on an output's
+    # sample is computed 10 ms later, on the next one, and never delays an output.
+    t_s = seconds([k * 10_000_000 for k in range(1000)])
+    out, work = deferred_work(OutputRate(10.0), t_s)
+    assert work == [k for k in range(1000) if k not in set(out)]
+
+
+def test_deferred_work_with_every_sample_published_follows_the_outputs():
+    # 2 Hz input at 10 Hz: no sample without an output, so the work follows each output but
+    # the first (a prediction due on the first sample is computed on the second).
+    t_s = seconds([k * 500_000_000 for k in range(20)])
+    out, work = deferred_work(OutputRate(10.0), t_s)
+    assert out == list(range(20)) and work == list(range(1, 20))
+
+
 @pytest.mark.parametrize("rate_hz", [0.0, -1.0, float("nan"), float("inf")])
 def test_a_rate_that_is_not_positive_is_refused(rate_hz):
     with pytest.raises(ValueError, match="publish rate"):
