@@ -14,26 +14,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from .estimators.base import Estimator
-from .series import EstimateSeries
+from .series import EstimateSeries, SampleSeries
 from .units import SECONDS_PER_HOUR
-
-
-class SampleSeries(Protocol):
-    """What :func:`run_estimator` needs: aligned arrays (``series.BatterySeries`` fits)."""
-
-    @property
-    def t_s(self) -> np.ndarray: ...
-    @property
-    def current_a(self) -> np.ndarray: ...
-    @property
-    def voltage_v(self) -> np.ndarray: ...
-    @property
-    def temperature_c(self) -> np.ndarray: ...
 
 
 def run_estimator(
@@ -76,14 +62,12 @@ def run_estimator(
         status.append(est.status.value)
         if progress is not None and (k + 1) % every == 0:
             progress(k + 1, n)
-    return EstimateSeries(
+    return EstimateSeries.over(
+        series,
         estimator=estimator.name,
-        t_s=np.asarray(series.t_s, dtype=float),
         soc=soc,
         soc_std=std,
-        voltage_v=np.asarray(series.voltage_v, dtype=float),
         voltage_pred_v=v_pred,
-        current_a=np.asarray(series.current_a, dtype=float),
         nis=nis,
         status=tuple(status),
         innovation_v=innov,

@@ -9,8 +9,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any, Protocol
 
 import numpy as np
+
+
+class SampleSeries(Protocol):
+    """Aligned arrays of a run's samples: what ``evaluation.run_estimator`` and
+    :meth:`EstimateSeries.over` read (:class:`BatterySeries` fits)."""
+
+    @property
+    def t_s(self) -> np.ndarray: ...
+    @property
+    def current_a(self) -> np.ndarray: ...
+    @property
+    def voltage_v(self) -> np.ndarray: ...
+    @property
+    def temperature_c(self) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -94,6 +109,17 @@ class EstimateSeries:
     soc_lumped_std: np.ndarray | None = None
     #: The estimate vector's ``cell.*`` values per row (``cells.cell_field_names`` order).
     cell_fields: np.ndarray | None = None
+
+    @classmethod
+    def over(cls, run: SampleSeries, **outputs: Any) -> EstimateSeries:
+        """The estimator's ``outputs`` (every other field) over ``run``, whose time, voltage
+        and current the series carries beside them."""
+        return cls(
+            t_s=np.asarray(run.t_s, dtype=float),
+            voltage_v=np.asarray(run.voltage_v, dtype=float),
+            current_a=np.asarray(run.current_a, dtype=float),
+            **outputs,
+        )
 
 
 #: The runtime predictions a replay keeps per sample (``soc_replay --output`` columns first).

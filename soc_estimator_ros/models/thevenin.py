@@ -68,6 +68,12 @@ from .ocv import UNINFORMATIVE_SOC_STD, OcvCurve
 from .tables import LaneTables, ParamTable
 
 
+def _zero_current(current_a: float | np.ndarray) -> bool:
+    """A current of exactly 0 given as one number: the array methods skip the terms it zeroes
+    (an array of currents computes them; each element's term is then 0 where its current is)."""
+    return isinstance(current_a, float) and current_a == 0.0
+
+
 @dataclass(frozen=True)
 class RcBranch:
     """One parallel RC branch: resistance (ohm), capacitance (farad) and the optional
@@ -85,10 +91,14 @@ class RcBranch:
         return s * math.asinh(current_a / s)
 
     def drive_array(
-        self, soc: np.ndarray, current_a: float, temperature_c: float | None = None
+        self,
+        soc: np.ndarray,
+        current_a: float | np.ndarray,
+        temperature_c: float | None = None,
     ) -> np.ndarray | float:
-        """:meth:`drive_a` for an array of SoC at one current."""
-        if self.i_sat_a is None or current_a == 0.0:
+        """:meth:`drive_a` for an array of SoC at one current, or at each element's current
+        (an array shaped as ``soc``)."""
+        if self.i_sat_a is None or _zero_current(current_a):
             return current_a
         s = self.i_sat_a.at_array(soc, temperature_c)
         return s * np.arcsinh(current_a / s)
@@ -159,10 +169,15 @@ class SurfaceLag:
         return tuple(out)
 
     def step_lanes(
-        self, z_modes: np.ndarray, current_a: np.ndarray, dt_s: np.ndarray, soc: np.ndarray
+        self,
+        z_modes: np.ndarray,
+        current_a: np.ndarray,
+        dt_s: float | np.ndarray,
+        soc: np.ndarray,
     ) -> np.ndarray:
         """:meth:`step` for K independent lanes: ``z_modes`` of shape ``(n_modes, K)``, the
-        other arguments ``(K,)`` (``np.exp`` for ``math.exp``: a few ulp apart)."""
+        other arguments ``(K,)`` or one ``dt_s`` for all (``np.exp`` for ``math.exp``: a few
+        ulp apart; an infinite ``dt_s`` gives the modes' steady values)."""
         out = np.empty_like(z_modes)
         modes = zip(self.gain_soc_per_a, self.tau_s, self.soc_max, strict=True)
         for j, (g, tau, soc_max) in enumerate(modes):
@@ -415,9 +430,10 @@ class TheveninModel:
         return drop
 
     def series_drop_array(
-        self, soc: np.ndarray, current_a: float, temperature_c: float | None = None
+        self, soc: np.ndarray, current_a: float | np.ndarray, temperature_c: float | None = None
     ) -> np.ndarray:
-        """:meth:`series_drop_v` for an array of SoC at one current."""
+        """:meth:`series_drop_v` for an array of SoC at one current, or at each element's
+        current (an array shaped as ``soc``)."""
         f = self.resistance_factor(temperature_c) if self._arrhenius else 1.0
         drop = current_a * self.params.r0_ohm.at_array(soc, temperature_c)
         if f != 1.0:
@@ -425,7 +441,7 @@ class TheveninModel:
         if self.r0_factor != 1.0:
             drop = drop * self.r0_factor
         kin = self.params.kinetic
-        if kin is not None and current_a != 0.0:
+        if kin is not None and not _zero_current(current_a):
             i0 = kin.i0_a.at_array(soc, temperature_c)
             if f != 1.0:
                 i0 = i0 / f
@@ -475,9 +491,15 @@ class TheveninModel:
         return out
 
     def step_batch(
-        self, xs: np.ndarray, current_a: float, dt_s: float, temperature_c: float | None = None
+        self,
+        xs: np.ndarray,
+        current_a: float | np.ndarray,
+        dt_s: float,
+        temperature_c: float | None = None,
     ) -> np.ndarray:
-        """:meth:`step` applied to every row of ``xs`` (shape ``(m, dim_x)``) at once.
+        """:meth:`step` applied to every row of ``xs`` (shape ``(m, dim_x)``) at once, at one
+        current or at each row's (``current_a`` of shape ``(m,)``: the runtime predictions'
+        candidate currents).
 
         All branches in one set of array operations (rows of ``(n_rc, m)`` arrays); each
         element gets the arithmetic of :meth:`step`, in the same order. The result has the
@@ -487,7 +509,11 @@ class TheveninModel:
         soc = xt[0]
         out = np.empty_like(xs)
         ot = out.T
-        eta = coulomb_efficiency(current_a, self.coulomb_efficiency_charge)
+        eff = self.coulomb_efficiency_charge
+        if isinstance(current_a, np.ndarray):
+            eta: float | np.ndarray = coulomb_efficiency_lanes(current_a, eff)
+        else:
+            eta = coulomb_efficiency(current_a, eff)
         ot[0] = soc - eta * current_a * dt_s / (SECONDS_PER_HOUR * self.capacity_ah)
         if self.n_rc:
             rc = np.array([t.at_array(soc, temperature_c) for t in self._rc_tables])
@@ -506,17 +532,34 @@ class TheveninModel:
                 ot[1:] = a * xt[1:] + r * (1.0 - a) * current_a
         return out
 
+    def branch_steady_batch(
+        self, soc: np.ndarray, current_a: np.ndarray, temperature_c: float | None = None
+    ) -> np.ndarray:
+        """Each branch's voltage after a constant current held long, ``R_i(s) I_i(s, I)``
+        (:meth:`step`'s limit as ``dt`` grows), at each element's SoC and current: shape
+        ``(n_rc, m)``."""
+        f = self.resistance_factor(temperature_c) if self._arrhenius else 1.0
+        out = np.empty((self.n_rc, soc.size))
+        for k, b in enumerate(self.params.branches):
+            r = b.r_ohm.at_array(soc, temperature_c)
+            if f != 1.0:
+                r = r * f
+            out[k] = r * b.drive_array(soc, current_a, temperature_c)
+        return out
+
     def terminal_voltage_batch(
         self,
         xs: np.ndarray,
-        current_a: float,
+        current_a: float | np.ndarray,
         temperature_c: float | None = None,
-        z_soc: float = 0.0,
+        z_soc: float | np.ndarray = 0.0,
     ) -> np.ndarray:
-        """:meth:`terminal_voltage` for every row of ``xs``."""
+        """:meth:`terminal_voltage` for every row of ``xs``, at one current and lag or at each
+        row's (``current_a``, ``z_soc`` of shape ``(m,)``)."""
         xt = xs.T
         soc = xt[0]
-        ocv = self.ocv.ocv_array(soc - z_soc if z_soc else soc)
+        shifted = isinstance(z_soc, np.ndarray) or z_soc
+        ocv = self.ocv.ocv_array(soc - z_soc if shifted else soc)
         v = ocv - self.series_drop_array(soc, current_a, temperature_c)
         if self.ocv_offset is not None:
             v = v + self.ocv_offset.at_array(soc, temperature_c)

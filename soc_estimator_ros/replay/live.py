@@ -345,14 +345,12 @@ def estimates_from(link: NodeLink, series: BatterySeries) -> EstimateSeries:
             soc[k], std[k] = last["soc"], last["soc_std"]
             x[k] = [last[f"x.{a}"] for a in names]
             p[k] = [[last[f"P.{a}.{b}"] for b in names] for a in names]
-    return EstimateSeries(
+    return EstimateSeries.over(
+        series,
         estimator=link.node.tracker.estimator.name,
-        t_s=np.asarray(series.t_s, dtype=float),
         soc=soc,
         soc_std=std,
-        voltage_v=np.asarray(series.voltage_v, dtype=float),
         voltage_pred_v=v_pred,
-        current_a=np.asarray(series.current_a, dtype=float),
         nis=nis,
         status=tuple(status),
         innovation_v=innov,

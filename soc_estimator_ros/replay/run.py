@@ -243,14 +243,12 @@ def track_series_runtime(
     tracker.finish()
     if health is not None and n:  # the end of the run may have read a last rest
         rt["capacity_ah"][n - 1], rt["r0_factor"][n - 1] = health.capacity_ah, health.r0_factor
-    estimates = EstimateSeries(
+    estimates = EstimateSeries.over(
+        series,
         estimator=tracker.estimator.name,
-        t_s=np.asarray(series.t_s, dtype=float),
         soc=soc,
         soc_std=std,
-        voltage_v=np.asarray(series.voltage_v, dtype=float),
         voltage_pred_v=v_pred,
-        current_a=np.asarray(series.current_a, dtype=float),
         nis=nis,
         status=tuple(status),
         innovation_v=innov,

@@ -145,100 +145,29 @@ class PackState:
 
 
 # -- the model's voltage, vectorized over SoC and current ---------------------------------------
+# The model's own array methods (TheveninModel.*_batch, SurfaceLag.step_lanes), each element
+# at its own current: one home for the model's arithmetic, the temperature law included.
 def steady_voltage_v(
     model: TheveninModel,
     soc: np.ndarray,
     current_a: np.ndarray,
     temperature_c: float | None = None,
 ) -> np.ndarray:
-    """``V_ss(s, I)`` of the module docstring, elementwise over equal-shaped ``soc`` and
-    ``current_a`` (A, discharge positive)."""
-    p = model.params
+    """``V_ss(s, I)`` of the module docstring, elementwise over equal-shaped 1-D ``soc`` and
+    ``current_a`` (A, discharge positive): :meth:`TheveninModel.terminal_voltage_batch` with
+    every branch at its steady voltage (:meth:`TheveninModel.branch_steady_batch`) and the
+    surface lag at its steady ``z`` (:meth:`SurfaceLag.step_lanes` over an infinite step)."""
     soc = np.asarray(soc, dtype=float)
     i = np.asarray(current_a, dtype=float)
-    z = np.zeros_like(soc)
-    lag = p.surface_lag
-    if lag is not None:
-        for g, soc_max in zip(lag.gain_soc_per_a, lag.soc_max, strict=True):
-            z = z + np.where(soc <= soc_max, g * i, 0.0)
-    v = model.ocv.ocv_array(soc - z) - i * p.r0_ohm.at_array(soc, temperature_c) * model.r0_factor
-    if p.kinetic is not None:
-        i0 = p.kinetic.i0_a.at_array(soc, temperature_c)
-        v = v - p.kinetic.a_v.at_array(soc, temperature_c) * np.arcsinh(i / i0)
-    if model.ocv_offset is not None:
-        v = v + model.ocv_offset.at_array(soc, temperature_c)
-    for b in p.branches:
-        r = b.r_ohm.at_array(soc, temperature_c)
-        if b.i_sat_a is None:
-            v = v - r * i
-        else:
-            s = b.i_sat_a.at_array(soc, temperature_c)
-            v = v - r * s * np.arcsinh(i / s)
-    return v
-
-
-def _zoh_step(
-    model: TheveninModel,
-    soc: np.ndarray,
-    v_rc: list[np.ndarray],
-    z: list[np.ndarray],
-    i: np.ndarray,
-    dt_s: float,
-    temperature_c: float | None,
-) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-    """:meth:`TheveninModel.step` and :meth:`TheveninModel.surface_step` over ``dt_s``,
-    elementwise over arrays of states and currents (parameters at each element's SoC)."""
-    eta = np.where(i < 0.0, model.coulomb_efficiency_charge, 1.0)
-    out_rc = []
-    for k, b in enumerate(model.params.branches):
-        r = b.r_ohm.at_array(soc, temperature_c)
-        a = np.exp(-dt_s / (r * b.c_f.at_array(soc, temperature_c)))
-        if b.i_sat_a is None:
-            drive = i
-        else:
-            s = b.i_sat_a.at_array(soc, temperature_c)
-            drive = s * np.arcsinh(i / s)
-        out_rc.append(a * v_rc[k] + r * (1.0 - a) * drive)
-    out_z = []
+    xs = np.empty((soc.size, model.dim_x))
+    xs[:, 0] = soc
+    if model.n_rc:
+        xs[:, 1:] = model.branch_steady_batch(soc, i, temperature_c).T
     lag = model.params.surface_lag
+    z: float | np.ndarray = 0.0
     if lag is not None:
-        for j, (g, tau, soc_max) in enumerate(
-            zip(lag.gain_soc_per_a, lag.tau_s, lag.soc_max, strict=True)
-        ):
-            a = math.exp(-dt_s / tau)
-            out_z.append(a * z[j] + (1.0 - a) * np.where(soc <= soc_max, g * i, 0.0))
-    new_soc = soc - eta * i * dt_s / (SECONDS_PER_HOUR * model.capacity_ah)
-    return new_soc, out_rc, out_z
-
-
-def _terminal(
-    model: TheveninModel,
-    soc: np.ndarray,
-    v_rc: list[np.ndarray],
-    z: list[np.ndarray],
-    i: np.ndarray,
-    bias_v: float,
-    r_delta_ohm: float,
-    temperature_c: float | None,
-) -> np.ndarray:
-    """:meth:`TheveninModel.terminal_voltage`, elementwise, plus ``bias_v`` less
-    ``I r_delta_ohm`` (the hybrid's ``_hx``)."""
-    p = model.params
-    z_soc = sum(z) if z else 0.0
-    v = (
-        model.ocv.ocv_array(soc - z_soc)
-        - i * p.r0_ohm.at_array(soc, temperature_c) * model.r0_factor
-    )
-    if p.kinetic is not None:
-        i0 = p.kinetic.i0_a.at_array(soc, temperature_c)
-        v = v - p.kinetic.a_v.at_array(soc, temperature_c) * np.arcsinh(i / i0)
-    if model.ocv_offset is not None:
-        v = v + model.ocv_offset.at_array(soc, temperature_c)
-    for vk in v_rc:
-        v = v - vk
-    if r_delta_ohm:
-        v = v - i * r_delta_ohm
-    return v + bias_v
+        z = lag.step_lanes(np.zeros((lag.n_modes, soc.size)), i, math.inf, soc).sum(axis=0)
+    return model.terminal_voltage_batch(xs, i, temperature_c, z)
 
 
 def terminal_path_v(
@@ -250,22 +179,32 @@ def terminal_path_v(
 ) -> np.ndarray:
     """The terminal voltage at each of ``times_s`` (increasing, s; 0 is the instant the
     current starts) of each constant current in ``current_a`` from ``state``: the model's
-    zero-order-hold step (:meth:`TheveninModel.step`, :meth:`TheveninModel.surface_step`) in
+    zero-order-hold step (:meth:`TheveninModel.step_batch`, :meth:`SurfaceLag.step_lanes`) in
     ``substeps`` steps between consecutive times, its parameters re-read at each step's SoC,
-    and :meth:`TheveninModel.terminal_voltage`. Shape ``(len(times_s), len(current_a))``."""
+    and :meth:`TheveninModel.terminal_voltage_batch`, plus the state's ``bias_v`` less ``I
+    r_delta_ohm`` (the hybrid's ``_hx``). Shape ``(len(times_s), len(current_a))``."""
     i = np.atleast_1d(np.asarray(current_a, dtype=float))
     t_c = state.temperature_c
-    soc = np.full(i.shape, state.soc)
-    v_rc = [np.full(i.shape, v) for v in state.branch_v]
-    z = [np.full(i.shape, v) for v in state.surface_z]
+    xs = np.empty((i.size, model.dim_x))
+    xs[:, 0] = state.soc
+    xs[:, 1:] = state.branch_v
+    lag = model.params.surface_lag
+    z = np.empty((len(state.surface_z), i.size))
+    z[:] = np.asarray(state.surface_z, dtype=float)[:, None]
     out = []
     t_prev = 0.0
     for t in times_s:
         span = t - t_prev
         if span > 0.0:
+            dt_s = span / substeps
             for _ in range(substeps):
-                soc, v_rc, z = _zoh_step(model, soc, v_rc, z, i, span / substeps, t_c)
-        out.append(_terminal(model, soc, v_rc, z, i, state.bias_v, state.r_delta_ohm, t_c))
+                if lag is not None:  # from the step's start SoC, as TheveninModel.surface_step
+                    z = lag.step_lanes(z, i, dt_s, xs[:, 0])
+                xs = model.step_batch(xs, i, dt_s, t_c)
+        v = model.terminal_voltage_batch(xs, i, t_c, z.sum(axis=0) if z.size else 0.0)
+        if state.r_delta_ohm:
+            v = v - i * state.r_delta_ohm
+        out.append(v + state.bias_v)
         t_prev = t
     return np.array(out)
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import REPO_ROOT
 
+from soc_estimator_ros.models.thevenin import TemperatureExtrapolation
 from soc_estimator_ros.params import load_battery_params
 from soc_estimator_ros.runtime.prediction import (
     EARLY_POWER_REL_STD,
@@ -159,20 +160,55 @@ def test_a_pack_already_below_the_limit_can_deliver_nothing():
     assert max_current_a(model, state, 10.0, SLA.limits.voltage_min_v, 60.0) == 0.0
 
 
-def test_terminal_path_is_the_models_own_step_and_output():
+def with_arrhenius(battery):
+    """``battery`` with an activation energy: its resistances grow by the Arrhenius law below
+    the identified temperatures (models/thevenin.py)."""
+    ea = TemperatureExtrapolation(activation_energy_j_per_mol=30_000.0)
+    return replace(battery, thevenin=replace(battery.thevenin, extrapolation=ea))
+
+
+#: (battery, temperature degC): inside the identified range (2-28 degC), and 32 degC below it
+#: with Ea (every resistance 5.6x at 30 kJ/mol: arithmetic without the law reads volts off).
+MODEL_CASES = [(LFP, 25.0), (SLA, 25.0), (with_arrhenius(LFP), -30.0), (with_arrhenius(SLA), -30.0)]
+
+
+@pytest.mark.parametrize(("battery", "temperature_c"), MODEL_CASES)
+def test_terminal_path_is_the_models_own_step_and_output(battery, temperature_c):
     """One step per interval: exactly TheveninModel.step, surface_step and terminal_voltage,
-    elementwise over the currents; row 0 is the voltage the instant the current starts."""
-    model = LFP.thevenin_model()
-    x, z, state = loaded_state(model, 0.5, 5.0, 30.0)
+    elementwise over the currents, at the state's temperature; row 0 is the voltage the
+    instant the current starts."""
+    model = battery.thevenin_model()
+    x, z, state = loaded_state(model, 0.5, 5.0, 30.0, temperature_c)
+    if temperature_c < 0.0:  # else nothing here tests the law
+        assert model.resistance_factor(temperature_c) > 2.0
     currents = np.array([0.0, 5.0, 20.0, -4.0])
     grid = terminal_path_v(model, state, currents, (0.0, 10.0), substeps=1)
     assert grid.shape == (2, 4)
+    t = temperature_c
     for k, i in enumerate(currents):
         # 2e-5 V: ocv_array's interpolation of the cubic (models/ocv.py: below 10 uV).
-        assert grid[0, k] == pytest.approx(model.terminal_voltage(x, i, 25.0, sum(z)), abs=2e-5)
-        x1 = model.step(x, i, 10.0, 25.0)
+        assert grid[0, k] == pytest.approx(model.terminal_voltage(x, i, t, sum(z)), abs=2e-5)
+        x1 = model.step(x, i, 10.0, t)
         z1 = model.surface_step(z, i, 10.0, float(x[0]))
-        assert grid[1, k] == pytest.approx(model.terminal_voltage(x1, i, 25.0, sum(z1)), abs=2e-5)
+        assert grid[1, k] == pytest.approx(model.terminal_voltage(x1, i, t, sum(z1)), abs=2e-5)
+
+
+@pytest.mark.parametrize(("battery", "temperature_c"), MODEL_CASES)
+def test_steady_voltage_is_the_models_voltage_after_a_long_hold(battery, temperature_c):
+    """``V_ss(s, I)``: the model's terminal voltage with every branch at ``R_i I_i`` and the
+    lag at its steady value, from the scalar methods (the temperature law included)."""
+    model = battery.thevenin_model()
+    soc = np.array([0.15, 0.5, 0.5, 0.9, 0.9])
+    currents = np.array([3.0, 0.0, 12.0, -2.0, 20.0])
+    v = steady_voltage_v(model, soc, currents, temperature_c)
+    for k, (s, i) in enumerate(zip(soc.tolist(), currents.tolist(), strict=True)):
+        branches = [model.branch_at(j, s, temperature_c)[0] for j in range(model.n_rc)]
+        drives = [b.drive_a(s, i, temperature_c) for b in model.params.branches]
+        x = np.array([s, *(r * d for r, d in zip(branches, drives, strict=True))])
+        lag = model.params.surface_lag
+        z = 0.0 if lag is None else sum(lag.step((0.0,) * lag.n_modes, i, math.inf, s))
+        want = model.terminal_voltage(x, i, temperature_c, z)
+        assert v[k] == pytest.approx(want, abs=2e-5)  # the interpolation's, as above
 
 
 # -- time to empty -----------------------------------------------------------------------------
