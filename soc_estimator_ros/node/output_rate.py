@@ -18,15 +18,15 @@ replay at any speed publishes the same outputs.
 ``filter_rate_hz`` below the input rate): a step that is due hands its output to the next
 sample, one input period later (10 ms at 100 Hz), which carries the step's estimate moved by
 that sample's counted charge; so the step's time (a UKF step: several times a message's
-handling) is in no output's latency, as the runtime predictions are computed after the output
-they belong to. Where every sample is a step (no filter rate, or input no faster than it),
-the due sample itself is published.
+handling) is in no output's latency, as no runtime prediction is (below). Where every
+sample is a step (no filter rate, or input no faster than it), the due sample itself is
+published.
 
 **Deferred work goes on a sample without an output** (:attr:`OutputRate.takes_deferred_work`):
 the runtime prediction due once a second (``RuntimeMonitor.flush``, about 1 ms) run right after
-an output's publish still made that output arrive about 1 ms later (a benchmark round here: the
-one output in ten that carried it, 1.2-1.3 ms of callback against 0.26 ms, was every one of the
-six latest outputs; docs/benchmarks.md). So it runs on the next sample that publishes nothing,
+an output's publish still made that output arrive about 1 ms later (in a benchmark round here
+the six latest outputs all carried it, their callbacks 1.2-1.3 ms against 0.26 ms;
+docs/benchmarks.md). So it runs on the next sample that publishes nothing,
 10 ms later at 100 Hz, or, where every sample is published (input no faster than the rate),
 after the output as before. ROS-free: the node passes the tracker's sample time
 (``Estimate.t_s``) and ``StepResult.filtered``.
