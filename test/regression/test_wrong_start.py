@@ -62,3 +62,33 @@ def test_until_then_sigma_holds_half_the_error() -> None:
     study, c = case()
     held = [study.score(c, off, START_STD)["held"] for off in (0.3, -0.3)]
     assert min(held) == 100.0, held
+
+
+def test_the_summary_sorts_the_misses_by_cause() -> None:
+    """summary(): a miss within SAME_AS_REF of the true start's run (ref) is the true start's;
+    of the others, those more than FAR_OUTSIDE_C outside the file's temperatures are counted
+    apart. Rows made up to sit on each side of both thresholds."""
+    study, _ = case()
+    same, far = study.SAME_AS_REF, study.FAR_OUTSIDE_C
+
+    def row(after: float, ref: float, out: float, held: float = 100.0) -> dict:
+        return {
+            "split": "validation",
+            "after": after,
+            "ref": ref,
+            "out": out,
+            "held": held,
+        }
+
+    rows = [
+        row(1.0, 0.5, 0.0),  # within 2 points
+        row(3.0, 3.0 - same, 0.0),  # as far off as the true start: the true start's
+        row(3.0, 3.0 - same - 0.1, far + 0.1),  # beyond it, far outside
+        row(3.0, 0.5, far),  # beyond it, not far outside
+        row(float("nan"), float("nan"), 0.0, 90.0),  # the OCV never told
+    ]
+    first, second = study.summary(rows)
+    assert "could tell on 4, within 2 points from 10 minutes after on 1" in first
+    assert "every sample on 4 of 5, on 95 % of them on 4" in first
+    assert "of the 3 beyond 2 points, 1 within" in second
+    assert "of the other 2, 1 more than" in second
