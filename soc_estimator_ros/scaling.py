@@ -110,6 +110,10 @@ TUNING_UNITS: dict[str, Unit | str] = {
     "flat_load_soc_std_min": NONE,
     # item 11: a count of std
     "persistent_innovation_sigma": NONE,
+    # item 12: SoC std and a count of grid points
+    "grid_soc_std_min": NONE,
+    "grid_soc_std_off": NONE,
+    "grid_points": NONE,
 }
 
 #: The unit of each field of the file's sections that carries one (the others are SoC,

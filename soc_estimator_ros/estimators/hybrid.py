@@ -178,6 +178,20 @@ papers report:
    filter is the one without it, to the bit (tested). ``persistent_innovation_sigma: 0``
    turns it off. Fixed beforehand, not fitted: it is neutral on both tuning halves
    (docs/accuracy.md, "A persistent innovation under load").
+12. **A wide start's sigma from the exact posterior.** The UKF's one Gaussian is wrong where
+   the posterior is not one: from a wide start on LFP's curve a reading "below the step"
+   cuts the prior, and the UKF placed the SoC 2.2 std from the truth where the cut prior's
+   mean and std held it at 1 (``lfp_validation_1001`` +30 %). So a start (or reset) whose
+   SoC std is at least ``grid_soc_std_min`` also runs the SoC's posterior on a grid of
+   ``grid_points`` values, under the same error model (item 5's persistent error
+   marginalized, the reading's ``R``, what the UKF's branch and resistance states leave
+   uncertain; ``soc_grid.py``), reading the samples the UKF reads; the published variance is
+   at least the grid's mean squared distance from the published SoC. The published SoC is
+   not moved: the grid answers how far off it may be. Once the grid's std falls below
+   ``grid_soc_std_off`` it is dropped (the UKF's variance holds from there), so a sure start
+   (std 0.015) is the filter without it, to the bit. Fixed beforehand (0.05: three times the
+   sure start's std; 0.02: ``flat_soc_std_max``), not fitted; ``grid_soc_std_min: 0`` turns
+   it off.
 """
 
 from __future__ import annotations
@@ -188,6 +202,7 @@ import numpy as np
 
 from ..units import SECONDS_PER_HOUR
 from .guard import ChargeCount, CountErrorModel, Guarded, guard
+from .soc_grid import SocGrid
 from .t2rc_ukf import T2rcUkf
 
 
@@ -269,10 +284,17 @@ class Hybrid(T2rcUkf):
         # the voltage then counts as one reading per nis_tau_s. A 3-sigma test, not fitted
         # (docs/accuracy.md, "A persistent innovation"); 0 turns it off.
         "persistent_innovation_sigma": 3.0,
+        # Item 12: a start or reset with a SoC std at least this runs the SoC's grid
+        # posterior beside the UKF until the grid's std falls below grid_soc_std_off; fixed
+        # beforehand, not fitted (0: never).
+        "grid_soc_std_min": 0.05,
+        "grid_soc_std_off": 0.02,
+        "grid_points": 201,  # 0.5 point apart: a tenth of the narrowest std the grid keeps
     }
     # Without the resistance state (``resistance_std_frac: 0``) ``_init_state`` drops its name.
     state_names: tuple[str, ...] = (*T2rcUkf.state_names, "bias_v", "r_delta_ohm")
     count: ChargeCount  # the guard's charge count (item 7), made by _init_state
+    grid: SocGrid | None  # item 12's posterior while the SoC is wide, else None
     _rest_fused: bool  # this rest's OCV reading is in the count
 
     # -- the model-error states (items 5 and 8): x = [model state, bias_v, (r_delta_ohm)] ------
@@ -376,12 +398,58 @@ class Hybrid(T2rcUkf):
         i = self.soc_index
         prior = float(self.tuning["model_prior"])
         if prior >= 1.0:  # the guard off: the UKF's own SoC and variance
-            return Guarded(float(self.x[i]), float(self.p[i, i]), 1.0)
+            return self._grid_floored(Guarded(float(self.x[i]), float(self.p[i, i]), 1.0))
         d = self.model.extrapolation_c(self._temp_c)
         if d != 0.0:
             prior *= math.exp(-0.5 * (d / self.tuning["extrapolation_scale_c"]) ** 2)
         u_var = max(float(self.p[i, i]), self._model_soc_var())
-        return guard(float(self.x[i]), u_var, self.count.soc, self.count.var, prior)
+        g = guard(float(self.x[i]), u_var, self.count.soc, self.count.var, prior)
+        return self._grid_floored(g)
+
+    def _grid_floored(self, g: Guarded) -> Guarded:
+        """Item 12: the published variance no smaller than the grid's mean squared distance
+        from the published SoC, while the grid runs."""
+        if self.grid is None:
+            return g
+        return Guarded(g.soc, max(g.soc_var, self.grid.squared_distance(g.soc)), g.model_weight)
+
+    # -- the grid posterior (item 12) ------------------------------------------------------
+    def _start_grid(self, soc: float, soc_var: float) -> SocGrid | None:
+        """A grid for a start as wide as ``grid_soc_std_min`` or wider, else None; its bias
+        starts as the UKF's bias state does."""
+        t = self.tuning
+        lowest = float(t["grid_soc_std_min"])
+        std = math.sqrt(soc_var)
+        if lowest <= 0.0 or std < lowest:
+            return None
+        n = self.model.dim_x
+        return SocGrid(soc, std, int(t["grid_points"]), float(self.kf.P[n, n]))
+
+    def _read_grid(
+        self, x_pred: np.ndarray, p_pred: np.ndarray, current_a: float, voltage_v: float, temp_c
+    ) -> None:
+        """Item 12: the reading the UKF just took, into the grid. Each point's voltage is the
+        model's at the UKF's predicted branches with the point's SoC, ``b`` and the resistance
+        error left out; the white variance is the UKF's ``R`` plus what its branch and
+        resistance states' uncertainty adds (``h P h`` over them, ``h`` = -1 per branch and
+        ``-I`` for the resistance). The grid is dropped once its std falls below
+        ``grid_soc_std_off``."""
+        grid = self.grid
+        assert grid is not None
+        n = self.model.dim_x
+        socs = grid.soc
+        xs = np.repeat(x_pred[np.newaxis, :n], socs.size, axis=0)
+        xs[:, self.soc_index] = socs
+        v = self.model.terminal_voltage_batch(xs, current_a, temp_c, self.z_soc)
+        h = np.zeros(self._dim_x)
+        h[1:n] = -1.0
+        if self._has_resistance:
+            h[n + 1] = -current_a
+        r_v2 = float(self._r[0, 0]) + float(h @ p_pred @ h)
+        grid.update(voltage_v - v, r_v2)
+        off = float(self.tuning["grid_soc_std_off"])
+        if grid.moments()[1] < off * off:
+            self.grid = None
 
     def _model_soc_var(self) -> float:
         """The floor of the UKF's SoC variance in the guard and when the count follows it
@@ -525,6 +593,7 @@ class Hybrid(T2rcUkf):
         super()._init_state(soc, soc_var)
         if kept is not None:  # a reset tells the SoC, not the pack: its resistance stays learned
             self.kf.x[-1], self.kf.P[-1, -1] = kept
+        self.grid = self._start_grid(soc, soc_var)
         self.rest_s = 0.0
         self.current_lp_a = 0.0
         self.nis_avg = 1.0
@@ -545,8 +614,14 @@ class Hybrid(T2rcUkf):
         self._persistent_s = 0.0  # how long the present episode has been flagged
 
     def _predict(self, dt_s: float, current_a: float, next_current_a: float, temp_c) -> None:
+        soc_before = float(self.kf.x[self.soc_index])
         super()._predict(dt_s, current_a, next_current_a, temp_c)
         self.count.step(current_a, dt_s)
+        if self.grid is not None:  # item 12: the grid moves by the charge the UKF counted
+            t = self.tuning
+            a = SocGrid.decay(dt_s, float(t["bias_tau_s"]))
+            q = float(t["bias_std_v"]) ** 2 * (1.0 - a * a)
+            self.grid.predict(float(self.kf.x[self.soc_index]) - soc_before, a, q)
         # A 40 mA-noise Hall sensor reads past 0.1 A every few seconds at rest: the rest test
         # looks at the current low-passed over rest_filter_tau_s, not at single samples.
         w = 1.0 - math.exp(-dt_s / self.tuning["rest_filter_tau_s"])
@@ -729,7 +804,10 @@ class Hybrid(T2rcUkf):
             v_pred = float(self._hx(self.kf.x[np.newaxis, :], current_a, temp_c)[0, 0])
             if gated or not self._contradicts_flat_estimate(voltage_v - v_pred):
                 return v_pred, math.nan, math.nan
+        grid_prior = None if self.grid is None else (self.kf.x.copy(), self.kf.P.copy())
         v_pred, innov, nis = super()._update(current_a, voltage_v, temp_c)
+        if grid_prior is not None and not math.isnan(nis):
+            self._read_grid(*grid_prior, current_a, voltage_v, temp_c)
         if self.at_rest:
             self._fuse_rest_ocv(current_a, voltage_v, temp_c)
         else:

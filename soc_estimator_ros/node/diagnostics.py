@@ -236,6 +236,11 @@ class Diagnostics:
                 ("soc_count_std", math.sqrt(charge_count.var)),
                 ("innovation_avg_v", hybrid.innovation_avg_v),
                 ("model_error_persistent", str(hybrid.persistent_error).lower()),
+                # item 12: the SoC's grid posterior, nan once the SoC is no longer wide
+                (
+                    "soc_grid_std",
+                    nan if hybrid.grid is None else math.sqrt(hybrid.grid.moments()[1]),
+                ),
             ]
         if health is not None:
             values += [(f"health_{k}", v) for k, v in health.fields().items()]

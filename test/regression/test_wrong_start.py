@@ -52,16 +52,32 @@ def test_a_wrong_start_is_within_two_points_ten_minutes_after_the_ocv_can_tell(o
     assert row["after"] < 2.0, row
 
 
+@cache
+def held() -> tuple[float, float]:
+    """% of the samples before the judged ones with sigma >= |error| / 2, from +30 and -30 %."""
+    study, c = case()
+    ref = study.true_start_after(c)
+    return tuple(study.score(c, off, START_STD, ref=ref)["held"] for off in (0.3, -0.3))
+
+
+@pytest.mark.slow
+def test_the_grids_sigma_holds_half_the_error_but_at_the_first_readings() -> None:
+    """Hybrid item 12 (the grid posterior's floor on the published variance): measured 99.8 %
+    (+30 %) and 99.1 % (-30 %) of the samples; without it 92.1 and 86.5 % (sigma fell to
+    1.5-2 % on the plateau before the step corrected the SoC). What is left is the first
+    0.5-2 s (next test); 99 % is 20 s of the 30 minutes before the step."""
+    assert min(held()) >= 99.0, held()
+
+
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
-    reason="measured sigma >= |error| / 2 on 92.1 % (+30 %) and 86.5 % (-30 %) of the samples "
-    "before: on the plateau the hybrid's sigma falls to 1.5-2 % before the step corrects it",
+    reason="measured sigma >= |error| / 2 on 99.8 % (+30 %) and 99.1 % (-30 %) of the samples "
+    "before: the first readings narrow a start placed 2 sigma from the truth, which then lies "
+    "beyond 2 std of the exact posterior too (+30 %: 2.1 std of the grid's, docs/accuracy.md)",
 )
 def test_until_then_sigma_holds_half_the_error() -> None:
-    study, c = case()
-    held = [study.score(c, off, START_STD)["held"] for off in (0.3, -0.3)]
-    assert min(held) == 100.0, held
+    assert min(held()) == 100.0, held()
 
 
 def test_the_summary_sorts_the_misses_by_cause() -> None:

@@ -642,6 +642,29 @@ def bursts_on_a_pack_of_lower_resistance(resistance_std_frac: float) -> tuple[fl
     return worst, end, r_delta
 
 
+def test_item_12_widens_the_variance_and_moves_nothing_else() -> None:
+    """A start as wide as ``grid_soc_std_min`` runs the grid: the published SoC, the state and
+    its covariance are the filter's without it (``grid_soc_std_min: 0``), to the bit; the
+    published variance is never smaller, and larger somewhere (the grid's cut prior is not the
+    UKF's Gaussian). A sure start runs no grid."""
+    t, current, voltage = drive_profile(3000, 0.1, seed=4)
+    voltage = voltage + 0.45  # the stream's 12.0-12.6 V onto LFP's plateau and lower knee
+    runs = []
+    for lowest in (0.05, 0.0):
+        tuning = {**LFP.filters["hybrid"], "grid_soc_std_min": lowest}
+        est = make_estimator("hybrid", LFP, 0.45, 0.15, tuning=tuning)
+        assert isinstance(est, Hybrid) and (est.grid is not None) == (lowest > 0.0)
+        runs.append([est.step(a, b, c, 25.0) for a, b, c in zip(t, current, voltage, strict=True)])
+    with_grid, without = runs
+    assert all(a.soc == b.soc for a, b in zip(with_grid, without, strict=True))
+    assert all(np.array_equal(a.x, b.x) for a, b in zip(with_grid, without, strict=True))
+    assert all(np.array_equal(a.p, b.p) for a, b in zip(with_grid, without, strict=True))
+    assert all(a.soc_var >= b.soc_var for a, b in zip(with_grid, without, strict=True))
+    assert any(a.soc_var > 1.1 * b.soc_var for a, b in zip(with_grid, without, strict=True))
+    sure = make_estimator("hybrid", LFP, 0.45, 0.015)
+    assert isinstance(sure, Hybrid) and sure.grid is None
+
+
 def test_hybrid_puts_a_pack_resistance_error_into_its_resistance_state_not_the_soc() -> None:
     worst, end, r_delta = bursts_on_a_pack_of_lower_resistance(0.087)
     # Measured: r_delta -17.96 mOhm at the end (of -18); SoC 0.04 % off at the end, 0.60 % at

@@ -85,6 +85,26 @@ def test_no_persistent_error_where_the_model_holds() -> None:
     assert dict(rep.values)["model_error_persistent"] == "false"
 
 
+def test_a_wide_starts_grid_is_reported_until_it_narrows() -> None:
+    """Hybrid item 12: the SoC's grid posterior std while it runs, nan otherwise (the item-11
+    case above starts sure: no grid)."""
+    rep, _ = lfp_load_report(0.0)
+    assert dict(rep.values)["soc_grid_std"] == "nan"
+    tr = Tracker(
+        LFP,
+        GateConfig.from_limits(LFP.limits),
+        TrackerConfig(estimator="hybrid", initial_soc=0.55, initial_soc_std=0.1),
+    )
+    model = LFP.thevenin_model()
+    x = model.rested_state(0.55)
+    for k in range(100):  # ten seconds at rest on the plateau: the grid stays wide
+        tr.process(Sample(k * S // 10, 0.0, model.terminal_voltage(x, 0.0), 25.0))
+    values = dict(Diagnostics(tr, "lfp.yaml", 0.0).report(10.0, stale_timeout_s=1e9).values)
+    # the plateau tells little in ten seconds: the grid's std is the prior's within a few points
+    assert 0.05 < float(values["soc_grid_std"]) <= 0.1
+    assert float(values["soc_std"]) >= float(values["soc_grid_std"]) - 1e-9
+
+
 def cells_report(cell_v: tuple[float, ...], bad_samples: int = 0):
     """Ten samples of a 4S LFP pack at rest with these cell voltages, ``bad_samples`` of them
     with cell 2 unreadable (NaN)."""
