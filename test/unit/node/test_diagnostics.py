@@ -50,20 +50,29 @@ def test_no_warning_where_the_model_is_trusted() -> None:
 LFP = load_battery_params(REPO_ROOT / "config" / "lfp_12v6ah.yaml")
 
 
-def lfp_load_report(error_v: float):
-    """Two minutes at 3 A with the voltage ``error_v`` off the LFP file's model, from the true
-    SoC 0.42 with std 0.015 (test_estimators.py's item 11 case); the report and the truth."""
+def lfp_load_report(
+    error_v: float,
+    soc: float = 0.42,
+    soc_std: float = 0.015,
+    current_a: float = 3.0,
+    samples: int = 1200,
+):
+    """``samples`` at 10 Hz (two minutes) at ``current_a`` (3 A) with the voltage ``error_v``
+    off the LFP file's model, from the true SoC ``soc`` (0.42) given with ``soc_std`` (0.015:
+    test_estimators.py's item 11 case); the report and the truth."""
     tr = Tracker(
         LFP,
         GateConfig.from_limits(LFP.limits),
-        TrackerConfig(estimator="hybrid", initial_soc=0.42, initial_soc_std=0.015),
+        TrackerConfig(estimator="hybrid", initial_soc=soc, initial_soc_std=soc_std),
     )
     model = LFP.thevenin_model()
-    x = model.rested_state(0.42)
-    for k in range(1200):
-        tr.process(Sample(k * S // 10, 3.0, model.terminal_voltage(x, 3.0) + error_v, 25.0))
-        x = model.step(x, 3.0, 0.1)
-    return Diagnostics(tr, "lfp.yaml", 0.0).report(120.0, stale_timeout_s=1e9), float(x[0])
+    x = model.rested_state(soc)
+    for k in range(samples):
+        v = model.terminal_voltage(x, current_a) + error_v
+        tr.process(Sample(k * S // 10, current_a, v, 25.0))
+        x = model.step(x, current_a, 0.1)
+    report = Diagnostics(tr, "lfp.yaml", 0.0).report(samples / 10, stale_timeout_s=1e9)
+    return report, float(x[0])
 
 
 def test_a_persistent_model_error_is_a_warning() -> None:
@@ -90,16 +99,9 @@ def test_a_wide_starts_grid_is_reported_until_it_narrows() -> None:
     case above starts sure: no grid)."""
     rep, _ = lfp_load_report(0.0)
     assert dict(rep.values)["soc_grid_std"] == "nan"
-    tr = Tracker(
-        LFP,
-        GateConfig.from_limits(LFP.limits),
-        TrackerConfig(estimator="hybrid", initial_soc=0.55, initial_soc_std=0.1),
-    )
-    model = LFP.thevenin_model()
-    x = model.rested_state(0.55)
-    for k in range(100):  # ten seconds at rest on the plateau: the grid stays wide
-        tr.process(Sample(k * S // 10, 0.0, model.terminal_voltage(x, 0.0), 25.0))
-    values = dict(Diagnostics(tr, "lfp.yaml", 0.0).report(10.0, stale_timeout_s=1e9).values)
+    # ten seconds at rest on the plateau, the start given wide: the grid stays wide
+    rep, _ = lfp_load_report(0.0, soc=0.55, soc_std=0.1, current_a=0.0, samples=100)
+    values = dict(rep.values)
     # the plateau tells little in ten seconds: the grid's std is the prior's within a few points
     assert 0.05 < float(values["soc_grid_std"]) <= 0.1
     assert float(values["soc_std"]) >= float(values["soc_grid_std"]) - 1e-9
