@@ -355,9 +355,14 @@ class Hybrid(T2rcUkf):
         n = self.model.dim_x
         out = np.empty_like(xs)
         out[:, :n] = self.model.step_batch(xs[:, :n], current_a, dt, temp_c)
-        out[:, n] = xs[:, n] * math.exp(-dt / self.tuning["bias_tau_s"])
+        out[:, n] = xs[:, n] * self._bias_decay(dt)
         out[:, n + 1 :] = xs[:, n + 1 :]  # the resistance error: a random walk
         return out
+
+    def _bias_decay(self, dt_s: float) -> float:
+        """Item 5's Gauss-Markov bias over ``dt_s``: ``b <- exp(-dt / bias_tau_s) b`` (its
+        noise is ``_process_noise``'s); item 12's grid moves its bias means alike."""
+        return math.exp(-dt_s / self.tuning["bias_tau_s"])
 
     def _hx(self, xs: np.ndarray, current_a: float = 0.0, temp_c=None) -> np.ndarray:
         n = self.model.dim_x
@@ -617,11 +622,11 @@ class Hybrid(T2rcUkf):
         soc_before = float(self.kf.x[self.soc_index])
         super()._predict(dt_s, current_a, next_current_a, temp_c)
         self.count.step(current_a, dt_s)
-        if self.grid is not None:  # item 12: the grid moves by the charge the UKF counted
-            t = self.tuning
-            a = SocGrid.decay(dt_s, float(t["bias_tau_s"]))
-            q = float(t["bias_std_v"]) ** 2 * (1.0 - a * a)
-            self.grid.predict(float(self.kf.x[self.soc_index]) - soc_before, a, q)
+        if self.grid is not None:  # item 12: the grid moves by the charge the UKF counted,
+            # its bias as the UKF's bias state (the decay of _fx, the noise of Q)
+            n = self.model.dim_x
+            dsoc = float(self.kf.x[self.soc_index]) - soc_before
+            self.grid.predict(dsoc, self._bias_decay(dt_s), float(self.kf.Q[n, n]))
         # A 40 mA-noise Hall sensor reads past 0.1 A every few seconds at rest: the rest test
         # looks at the current low-passed over rest_filter_tau_s, not at single samples.
         w = 1.0 - math.exp(-dt_s / self.tuning["rest_filter_tau_s"])

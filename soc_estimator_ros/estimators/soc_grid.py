@@ -32,8 +32,6 @@ is small against the widths the grid is kept for) and is clipped to [0, 1] where
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 
@@ -93,8 +91,3 @@ class SocGrid:
         an estimate ``soc`` is off by in expectation."""
         mean, var = self.moments()
         return var + (mean - soc) ** 2
-
-    @staticmethod
-    def decay(dt_s: float, tau_s: float) -> float:
-        """``a = exp(-dt / tau)``."""
-        return math.exp(-dt_s / tau_s)

@@ -60,8 +60,7 @@ def test_the_points_move_with_the_counted_charge_and_stay_in_range() -> None:
     the bias mean and variance decay as the Gauss-Markov process does."""
     grid = SocGrid(0.5, 0.1, 11, 0.01)
     grid.bias_mean_v[:] = 0.2
-    a = SocGrid.decay(60.0, 600.0)
-    assert a == pytest.approx(math.exp(-0.1))
+    a = math.exp(-60.0 / 600.0)  # a minute of a 10-minute correlation time
     grid.predict(-0.15, a, 0.003)
     assert grid.soc[0] == 0.0 and grid.soc[1] == 0.0 and grid.soc[2] == pytest.approx(0.05)
     assert grid.soc[-1] == pytest.approx(0.85)
