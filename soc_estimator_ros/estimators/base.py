@@ -26,7 +26,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf
@@ -34,6 +34,9 @@ from scipy.linalg.lapack import dpotrf
 from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
 from ..units import SECONDS_PER_HOUR
+
+if TYPE_CHECKING:  # guard.py imports this module
+    from .guard import ChargeCount
 
 #: A SoC variance past which nothing is known (std 1 for a quantity in [0, 1]); clipping never
 #: grows the variance beyond it.
@@ -140,6 +143,10 @@ class Estimator(ABC):
     name: ClassVar[str] = ""
     state_names: tuple[str, ...] = ("soc",)
     soc_index: int = 0
+    #: Publish a variance no smaller than the squared distance from a charge count from the
+    #: same start plus the count's own variance (:meth:`_published`): set by the filters that
+    #: read the voltage and carry no guard of their own (issue 24 item 5).
+    count_floor: ClassVar[bool] = False
     #: Tuning entries and their defaults; a battery file's ``filters.<name>`` overrides them.
     default_tuning: ClassVar[Mapping[str, Any]] = {}
     # Set by _init_state (FilterpyState makes them properties over a filterpy filter).
@@ -174,7 +181,9 @@ class Estimator(ABC):
         #: voltage-reading filters (t2rc_ukf, the hybrid) add it to their measurement noise;
         #: the others read the voltage with their own noise only.
         self.voltage_offset_var_v2 = 0.0
-        self._init_state(initial_soc, initial_soc_std**2)
+        #: The charge count behind the published variance's floor (``count_floor``), else None.
+        self.floor_count: ChargeCount | None = self._new_floor_count() if self.count_floor else None
+        self._start(initial_soc, initial_soc_std**2)
 
     # -- configuration -----------------------------------------------------------------------
     @classmethod
@@ -197,6 +206,20 @@ class Estimator(ABC):
                     )
             merged[key] = value
         return merged
+
+    def _new_floor_count(self) -> ChargeCount:
+        """The count of :attr:`count_floor`, with the file's count error budget (the guard's:
+        ``guard.count_errors``)."""
+        from .guard import ChargeCount, count_errors  # guard.py imports this module
+
+        b = self.battery
+        return ChargeCount(count_errors(b), b.capacity_ah, b.coulomb_efficiency_charge)
+
+    def _start(self, soc: float, soc_var: float) -> None:
+        """``_init_state``, the floor's count anchored at the same start."""
+        self._init_state(soc, soc_var)
+        if self.floor_count is not None:
+            self.floor_count.anchor(soc, soc_var)
 
     # -- subclass hooks ----------------------------------------------------------------------
     @abstractmethod
@@ -254,10 +277,14 @@ class Estimator(ABC):
                 else held_current_a
             )
             self._predict(dt, held, current_a, temperature_c)
+            if self.floor_count is not None:
+                self.floor_count.step(held, dt)
             if dt > self.time_policy.max_step_s:
                 status = StepStatus.GAP
                 q = self.time_policy.gap_current_std_a * dt / (SECONDS_PER_HOUR * self.capacity_ah)
                 self._inflate_soc_variance(q * q)
+                if self.floor_count is not None:
+                    self.floor_count.inflate(q * q)
             else:
                 status = StepStatus.OK
             self.p = condition_covariance(self.p)
@@ -280,8 +307,27 @@ class Estimator(ABC):
             self.p[i, i] += min((s - clipped) ** 2, max(MAX_SOC_VAR - self.p[i, i], 0.0))
 
     def _published(self) -> tuple[float, float]:
-        """The SoC and variance an estimate carries (:attr:`soc`, :attr:`soc_var`)."""
-        return self.soc, self.soc_var
+        """The SoC and variance an estimate carries: :attr:`soc` and :attr:`soc_var`, the
+        variance, with :attr:`count_floor`, no smaller than ``(soc - c)^2 + P_c`` for the
+        count ``c`` from the same start and its variance ``P_c`` (``guard.ChargeCount``).
+
+        The filter's error is its distance from the count plus the count's error, so where a
+        wrong model drags the filter (seed 001's EKF reads the voltage at a tight ``R``), the
+        disagreement shows in the variance instead of hiding behind the filter's own ``P``,
+        which assumes the model right. The SoC is the filter's: only its sigma changes. The
+        count is the guard's, without its readings (the hybrid's mixture also re-anchors it
+        at rests and follows a trusted filter, ``guard.py``)."""
+        soc, var = self.soc, self.soc_var
+        c = self.floor_count
+        if c is not None:
+            var = max(var, (soc - c.soc) ** 2 + c.var)
+        return soc, var
+
+    @property
+    def published_soc_var(self) -> float:
+        """The variance an estimate carries now (:meth:`_published`): what a saved state and a
+        handover keep."""
+        return self._published()[1]
 
     def _estimate(
         self, t_s: float, status: StepStatus, v_pred: float, innov: float, nis: float
@@ -314,6 +360,8 @@ class Estimator(ABC):
                 f"set_health needs capacity and factor > 0, got {capacity_ah}, {r0_factor}"
             )
         self.capacity_ah = capacity_ah
+        if self.floor_count is not None:
+            self.floor_count.capacity_ah = capacity_ah
         model = getattr(self, "model", None)
         if isinstance(model, TheveninModel):
             model.capacity_ah = capacity_ah
@@ -323,10 +371,10 @@ class Estimator(ABC):
         """Re-initialize to a pack at rest at ``soc`` (keeps the time base)."""
         if not (0.0 <= soc <= 1.0) or not soc_std > 0.0:
             raise ValueError(f"reset_soc needs soc in [0, 1] and std > 0, got {soc}, {soc_std}")
-        self._init_state(soc, soc_std**2)
+        self._start(soc, soc_std**2)
 
     def start_from(self, t_s: float | None, soc: float, soc_var: float, current_a: float) -> None:
         """Continue another estimator's run: its last stamp, SoC, variance and current."""
-        self._init_state(min(max(soc, 0.0), 1.0), max(soc_var, 1e-12))
+        self._start(min(max(soc, 0.0), 1.0), max(soc_var, 1e-12))
         self.t_last_s = t_s
         self.current_last_a = current_a

@@ -30,6 +30,7 @@ class Ekf(FilterpyState, Estimator):
     """EKF on the 1-RC Thevenin model."""
 
     name = "ekf"
+    count_floor = True  # the published variance floored by a charge count (base.py)
     state_names = ("soc", "v1_v")
     soc_index = 0
     default_tuning = {

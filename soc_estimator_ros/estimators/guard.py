@@ -74,8 +74,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 from ..models.coulomb import coulomb_step
+from ..params import BatteryParams
 from ..units import SECONDS_PER_HOUR
 from .base import MAX_SOC_VAR
 
@@ -96,6 +98,25 @@ class CountErrorModel:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value}")
+
+
+#: The count's error budget, from the sensor and the pack's spread (bags/README.md "Sensors": a
+#: Hall sensor's offset within +-30 mA and gain within +-0.8 %, uniform: std 17 mA and 0.46 %;
+#: the corpus' capacity spread +-5 %: 2.9 %): the hybrid's tuning entries of these names.
+COUNT_ERROR_DEFAULTS = {
+    "current_offset_std_a": 0.02,
+    "current_gain_std": 0.005,
+    "capacity_std_frac": 0.03,
+}
+
+
+def count_errors(battery: BatteryParams) -> CountErrorModel:
+    """A battery file's count error budget: its ``filters.hybrid`` entries of
+    :data:`COUNT_ERROR_DEFAULTS`' names (the defaults where it has none). One budget per
+    file: the hybrid's guard and every other filter's published floor (``base.py``) read it."""
+    given = battery.filters.get("hybrid", {})
+    budget = {k: given.get(k, v) for k, v in COUNT_ERROR_DEFAULTS.items()}
+    return CountErrorModel(**{k: float(cast(float, v)) for k, v in budget.items()})
 
 
 class ChargeCount:

@@ -201,7 +201,7 @@ import math
 import numpy as np
 
 from ..units import SECONDS_PER_HOUR
-from .guard import ChargeCount, CountErrorModel, Guarded, guard
+from .guard import COUNT_ERROR_DEFAULTS, ChargeCount, CountErrorModel, Guarded, guard
 from .soc_grid import SocGrid
 from .t2rc_ukf import T2rcUkf
 
@@ -210,6 +210,7 @@ class Hybrid(T2rcUkf):
     """T2RC+UKF with load-dependent R, rest OCV correction and NIS-driven inflation."""
 
     name = "hybrid"
+    count_floor = False  # its guard publishes the count and the UKF mixed (item 7)
     default_tuning = {
         **T2rcUkf.default_tuning,
         # Tuned on the bundled field runs (docs/accuracy.md): the branch voltages may wander
@@ -237,12 +238,8 @@ class Hybrid(T2rcUkf):
         # Item 6: degC outside the identified temperatures at which the measurement std has
         # grown by sqrt(2); chosen on the tuning set (docs/accuracy.md, "Do no harm").
         "extrapolation_scale_c": 2.0,
-        # Item 7, the guard: the count's error budget, from the sensor and the pack's spread
-        # (bags/README.md "Sensors": a Hall sensor's offset within +-30 mA and gain within
-        # +-0.8 %, uniform: std 17 mA and 0.46 %; the corpus' capacity spread +-5 %: 2.9 %).
-        "current_offset_std_a": 0.02,
-        "current_gain_std": 0.005,
-        "capacity_std_frac": 0.03,
+        # Item 7, the guard: the count's error budget (guard.COUNT_ERROR_DEFAULTS).
+        **COUNT_ERROR_DEFAULTS,
         "model_prior": 0.9,  # probability that the model holds, inside the identified range
         "follow_tau_s": 60.0,  # s: one independent reading of the trusted filter per this
         # ... once the count is as sure as the filter's floor (docs/accuracy.md "The guard
@@ -585,11 +582,7 @@ class Hybrid(T2rcUkf):
         self._temp_c: float | None = None
         if not hasattr(self, "count"):
             t = self.tuning
-            errors = CountErrorModel(
-                float(t["current_offset_std_a"]),
-                float(t["current_gain_std"]),
-                float(t["capacity_std_frac"]),
-            )
+            errors = CountErrorModel(**{key: float(t[key]) for key in COUNT_ERROR_DEFAULTS})
             self.count = ChargeCount(
                 errors, self.capacity_ah, self.battery.coulomb_efficiency_charge
             )

@@ -33,6 +33,7 @@ class RcKf(FilterpyState, Estimator):
     """Linear KF on the Saft RC model; SoC = OCV^-1(V_cb)."""
 
     name = "rc_kf"
+    count_floor = True  # the published variance floored by a charge count (base.py)
     state_names = ("v_cb_v", "v_cs_v", "v_o_v")
     soc_index = 0
     default_tuning = {

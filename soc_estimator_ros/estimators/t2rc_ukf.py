@@ -148,6 +148,7 @@ class T2rcUkf(FilterpyState, Estimator):
     """UKF on the 2-RC Thevenin model (SoC is a state)."""
 
     name = "t2rc_ukf"
+    count_floor = True  # the published variance floored by a charge count (base.py)
     state_names: tuple[str, ...] = ("soc", "v1_v", "v2_v")
     soc_index = 0
     default_tuning = {

@@ -59,6 +59,8 @@ class _Calls:
     fresh: list[bool] = field(default_factory=list)  # no time base before it: a first sample
     before: list[tuple[float, float]] = field(default_factory=list)
     after: list[tuple[float, float]] = field(default_factory=list)
+    # The published variance's count (``Estimator.count_floor``) after the call: SoC, variance.
+    count: list[tuple[float, float]] = field(default_factory=list)
 
 
 class _CallLog(T2rcUkf):
@@ -90,11 +92,20 @@ class _CallLog(T2rcUkf):
         calls.fresh.append(self.t_last_s is None)
         calls.before.append(self._take_pending())
         calls.after.append((math.nan, math.nan))
-        return Estimator.step(self, t_s, current_a, voltage_v, temperature_c)
+        out = Estimator.step(self, t_s, current_a, voltage_v, temperature_c)
+        calls.count.append(self._count_now())
+        return out
 
     def after_step_reset(self) -> None:
         """The reset just made belongs after the last step (a FULL recalibration)."""
         self.calls.after[-1] = self._take_pending()
+        self.calls.count[-1] = self._count_now()
+
+    def _count_now(self) -> tuple[float, float]:
+        """The floor's count (base.py ``_published``): the filter's calls move it alike."""
+        count = self.floor_count
+        assert count is not None
+        return count.soc, count.var
 
     def _take_pending(self) -> tuple[float, float]:
         pending = getattr(self, "_pending", (math.nan, math.nan))
@@ -175,12 +186,14 @@ def _run_calls(battery: BatteryParams, lanes: list[_Calls], proto: _CallLog):
     fresh = np.zeros((k, n), dtype=bool)
     before = np.full((k, n, 2), math.nan)
     after = np.full((k, n, 2), math.nan)
+    count = np.full((n, k, 2), math.nan)
     for lane, c in enumerate(lanes):
         m = len(c.t_s)
         present[lane, :m] = True
         fresh[lane, :m] = c.fresh
         before[lane, :m] = c.before
         after[lane, :m] = c.after
+        count[:m, lane] = c.count
     soc, var, v_pred, innov, nis = (np.full((n, k), math.nan) for _ in range(5))
     x = np.full((n, k, dim), math.nan)
     p = np.full((n, k, dim, dim), math.nan)
@@ -202,7 +215,10 @@ def _run_calls(battery: BatteryParams, lanes: list[_Calls], proto: _CallLog):
         if reset.any():
             engine.reset_soc(reset, after[reset, step, 0], after[reset, step, 1])
         stepped[step] = present[:, step] & (r.status != LaneStatus.REJECTED_DT)
-        soc[step], var[step] = engine.x[0], engine.p[0, 0]
+        soc[step] = engine.x[0]
+        # The published variance: the filter's, floored by the count (base.py ``_published``).
+        c_soc, c_var = count[step, :, 0], count[step, :, 1]
+        var[step] = np.maximum(engine.p[0, 0], (engine.x[0] - c_soc) ** 2 + c_var)
         v_pred[step], innov[step], nis[step] = r.voltage_pred_v, r.innovation_v, r.nis
         x[step] = engine.x.T
         p[step] = engine.p.transpose(2, 0, 1)

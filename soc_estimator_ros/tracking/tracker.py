@@ -624,7 +624,7 @@ class Tracker:
         if new is None or new.name != PRESETS.get(name, name):
             new = self.prepare_estimator(name)
         old = self.estimator
-        soc, var = old.soc, old.soc_var
+        soc, var = old.soc, old.published_soc_var
         new.start_from(old.t_last_s, soc, var, old.current_last_a)
         self.estimator = new
         self._apply_health()
@@ -710,7 +710,7 @@ class Tracker:
     @property
     def soc_var(self) -> float:
         """The SoC variance now, at most ``MAX_SOC_VAR`` (what a state file may hold)."""
-        return min(self.estimator.soc_var, MAX_SOC_VAR)
+        return min(self.estimator.published_soc_var, MAX_SOC_VAR)
 
     @property
     def usable_soc(self) -> float:

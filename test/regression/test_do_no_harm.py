@@ -137,3 +137,24 @@ def test_the_tracker_path_is_the_bare_estimator_until_the_charger_stops() -> Non
         assert node.soc[stop] == 1.0
         if name == "coulomb":  # what the recalibration corrects: 1.4 points
             assert bare.soc[stop] == pytest.approx(0.9845, abs=1e-4)
+
+
+@cache
+def bundled_validation() -> dict:
+    study = load_benchmark("studies/do_no_harm")
+    return {c.name: (study, c) for c in study.corpus_cases(REPO_ROOT / "bags")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("bag", ["sla_validation_1003", "lfp_validation_1001"])
+@pytest.mark.parametrize("name", ["t2rc_ukf", "ekf", "dcc_ekf", "rc_kf"])
+def test_every_filter_that_publishes_sigma_holds_the_truth(bag: str, name: str) -> None:
+    """Issue 24 item 5 for the seed papers' filters (base.py ``_published``: the variance
+    floored by a charge count from the same start), on the bundled validation missions from a
+    start as sure as a resumed state (std 0.015). Measured without the floor: coverage 16.5 /
+    0 / 0 / 2.7 % (SLA 1003) and 73.0 / 0 / 53.8 / 6.2 % (LFP 1001); with it 100 % on all
+    eight, the mean sigma 1.8-6.0 % but rc_kf's on LFP (17.5 %, its MAE 17.0 %)."""
+    study, case = bundled_validation()[bag]
+    row = study.score(case, name, 0.015)
+    # The issue's band for the +-2 sigma coverage after the 10-minute window.
+    assert 90.0 <= row["coverage"] <= 100.0, row

@@ -76,9 +76,11 @@ def reference(
             float(series.voltage_v[k]),
             float(series.temperature_c[k]),
         )
+        # The filter's own variance: the engine is the filter; the published floor of base.py
+        # is the replay's (replay/batch.py, test/unit/replay/test_batch.py).
         out["soc"][k], out["var"][k], out["v_pred"][k], out["nis"][k] = (
             e.soc,
-            e.soc_var,
+            float(e.p[0, 0]),
             e.voltage_pred_v,
             e.nis,
         )

@@ -219,3 +219,51 @@ def test_a_rated_capacity_widens_the_filters_floor_by_the_ocv_axis() -> None:
     assert err < 0.0 and abs(err) < abs(err_off)  # less dragged
     assert abs(err) <= math.sqrt(est.soc_var)  # and its sigma holds the error
     assert abs(err_off) > math.sqrt(off.soc_var)  # where without the term it did not
+
+
+FLOORED = ["t2rc_ukf", "ekf", "dcc_ekf", "rc_kf"]
+
+
+@pytest.mark.parametrize("name", FLOORED)
+def test_a_filter_without_a_guard_publishes_its_distance_from_the_count(name: str) -> None:
+    """Issue 24 item 5 (base.py ``_published``): a voltage 0.3 below what the counted SoC gives,
+    at 0.1 C for 20 minutes from 0.8 with std 0.02 (as the guard's tests above): each filter
+    goes with the voltage and its own ``P`` stays small; the published variance is the
+    squared distance from the count plus the count's variance, the SoC the filter's."""
+    est = make_estimator(name, SLA, 0.8, 0.02)
+    feed(est, 20.0, 0.5, est.battery.ocv_curve().ocv(0.5), 25.0)
+    count = est.floor_count
+    counted = 0.8 - 0.5 * 1200.0 / 3600.0 / SLA.capacity_ah
+    assert count.soc == pytest.approx(counted, abs=1e-3)  # 1e-3: 0.1 s zero-order hold
+    # The count's budget is the file's (the guard's entries of filters.hybrid).
+    offset = 0.02 * 1199.9 / 3600.0 / SLA.capacity_ah
+    budget = 0.02**2 + offset**2 + (0.005**2 + 0.03**2) * (count.soc - 0.8) ** 2
+    assert count.var == pytest.approx(budget, rel=1e-9)  # rounding only
+    out = est.last
+    assert out.soc == est.soc and est.soc < counted - 0.05  # dragged, not moved by the floor
+    assert est.soc_var < (est.soc - count.soc) ** 2  # its own P does not show it
+    assert out.soc_var == pytest.approx((est.soc - count.soc) ** 2 + count.var, rel=1e-12)
+    # What a saved state and a handover keep (tracking/tracker.py) is the published variance.
+    assert est.published_soc_var == out.soc_var
+
+
+@pytest.mark.parametrize("name", FLOORED)
+def test_the_floors_count_starts_with_the_filter_and_follows_its_capacity(name: str) -> None:
+    est = make_estimator(name, SLA, 0.8, 0.02)
+    est.step(0.0, 1.0, 12.6)
+    est.reset_soc(0.4, 0.05)
+    assert (est.floor_count.soc, est.floor_count.var) == (0.4, pytest.approx(0.05**2))
+    est.start_from(10.0, 0.6, 1e-3, 1.0)
+    assert (est.floor_count.soc, est.floor_count.var) == (0.6, pytest.approx(1e-3))
+    est.set_health(4.0, 1.0)
+    assert est.floor_count.capacity_ah == 4.0
+    # A gap widens the count as it widens the filter (base.py's gap rule).
+    before = est.floor_count.var
+    est.step(610.0, 1.0, 12.6)
+    gap_std = est.time_policy.gap_current_std_a * 600.0 / 3600.0 / 4.0
+    assert est.floor_count.var >= before + gap_std**2
+
+
+@pytest.mark.parametrize("name", ["hybrid", "coulomb"])
+def test_the_guarded_hybrid_and_the_count_itself_carry_no_floor(name: str) -> None:
+    assert make_estimator(name, SLA, 0.8, 0.02).floor_count is None
