@@ -213,7 +213,8 @@ class Estimator(ABC):
         from .guard import ChargeCount, count_errors  # guard.py imports this module
 
         b = self.battery
-        return ChargeCount(count_errors(b), b.capacity_ah, b.coulomb_efficiency_charge)
+        errors = count_errors(b.filters.get("hybrid", {}))
+        return ChargeCount(errors, b.capacity_ah, b.coulomb_efficiency_charge)
 
     def _start(self, soc: float, soc_var: float) -> None:
         """``_init_state``, the floor's count anchored at the same start."""

@@ -73,11 +73,11 @@ inflates the count too.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import cast
+from typing import Any
 
 from ..models.coulomb import coulomb_step
-from ..params import BatteryParams
 from ..units import SECONDS_PER_HOUR
 from .base import MAX_SOC_VAR
 
@@ -110,13 +110,13 @@ COUNT_ERROR_DEFAULTS = {
 }
 
 
-def count_errors(battery: BatteryParams) -> CountErrorModel:
-    """A battery file's count error budget: its ``filters.hybrid`` entries of
-    :data:`COUNT_ERROR_DEFAULTS`' names (the defaults where it has none). One budget per
-    file: the hybrid's guard and every other filter's published floor (``base.py``) read it."""
-    given = battery.filters.get("hybrid", {})
-    budget = {k: given.get(k, v) for k, v in COUNT_ERROR_DEFAULTS.items()}
-    return CountErrorModel(**{k: float(cast(float, v)) for k, v in budget.items()})
+def count_errors(entries: Mapping[str, Any]) -> CountErrorModel:
+    """The count error budget in ``entries`` (the hybrid's tuning, or a battery file's
+    ``filters.hybrid`` block) under :data:`COUNT_ERROR_DEFAULTS`' names, the defaults where
+    they have none. One budget per file: the hybrid's guard and every other filter's
+    published floor (``base.py``) read it."""
+    budget = {k: entries.get(k, v) for k, v in COUNT_ERROR_DEFAULTS.items()}
+    return CountErrorModel(**{k: float(v) for k, v in budget.items()})
 
 
 class ChargeCount:

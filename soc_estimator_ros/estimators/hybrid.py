@@ -201,7 +201,7 @@ import math
 import numpy as np
 
 from ..units import SECONDS_PER_HOUR
-from .guard import COUNT_ERROR_DEFAULTS, ChargeCount, CountErrorModel, Guarded, guard
+from .guard import COUNT_ERROR_DEFAULTS, ChargeCount, Guarded, count_errors, guard
 from .soc_grid import SocGrid
 from .t2rc_ukf import T2rcUkf
 
@@ -581,10 +581,8 @@ class Hybrid(T2rcUkf):
         self._rest_fused = False
         self._temp_c: float | None = None
         if not hasattr(self, "count"):
-            t = self.tuning
-            errors = CountErrorModel(**{key: float(t[key]) for key in COUNT_ERROR_DEFAULTS})
             self.count = ChargeCount(
-                errors, self.capacity_ah, self.battery.coulomb_efficiency_charge
+                count_errors(self.tuning), self.capacity_ah, self.battery.coulomb_efficiency_charge
             )
         self.count.anchor(soc, soc_var)
         kept = self._learned_resistance()
