@@ -22,6 +22,10 @@ from enum import Enum
 
 SECONDS_PER_HOUR = 3600.0
 
+#: A SoC variance past which nothing is known (std 1 for a quantity in [0, 1]); clipping never
+#: grows the variance beyond it, and a state file holds at most it.
+MAX_SOC_VAR = 1.0
+
 
 class CurrentSign(str, Enum):
     """How an external source signs its current."""

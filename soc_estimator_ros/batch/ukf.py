@@ -70,11 +70,11 @@ from typing import Any
 import numpy as np
 
 from ..errors import SocEstimatorError
-from ..estimators.base import MAX_SOC_VAR, StepStatus, TimePolicy
+from ..estimators.base import StepStatus, TimePolicy
 from ..estimators.t2rc_ukf import BatchMerweScaledSigmaPoints, T2rcUkf, check_sigma_weights
 from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
-from ..units import SECONDS_PER_HOUR
+from ..units import MAX_SOC_VAR, SECONDS_PER_HOUR
 from .linalg import cholesky_lanes, condition_lanes
 
 

@@ -26,21 +26,15 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf
 
 from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
-from ..units import SECONDS_PER_HOUR
-
-if TYPE_CHECKING:  # guard.py imports this module
-    from .guard import ChargeCount
-
-#: A SoC variance past which nothing is known (std 1 for a quantity in [0, 1]); clipping never
-#: grows the variance beyond it.
-MAX_SOC_VAR = 1.0
+from ..units import MAX_SOC_VAR, SECONDS_PER_HOUR
+from .guard import ChargeCount, count_errors
 
 
 class StepStatus(str, Enum):
@@ -210,8 +204,6 @@ class Estimator(ABC):
     def _new_floor_count(self) -> ChargeCount:
         """The count of :attr:`count_floor`, with the file's count error budget (the guard's:
         ``guard.count_errors``)."""
-        from .guard import ChargeCount, count_errors  # guard.py imports this module
-
         b = self.battery
         errors = count_errors(b.filters.get("hybrid", {}))
         return ChargeCount(errors, b.capacity_ah, b.coulomb_efficiency_charge)

@@ -78,8 +78,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..models.coulomb import coulomb_step
-from ..units import SECONDS_PER_HOUR
-from .base import MAX_SOC_VAR
+from ..units import MAX_SOC_VAR, SECONDS_PER_HOUR
 
 #: Density of the "model does not hold" hypothesis: d uniform over [-1, 1].
 _WRONG_MODEL_DENSITY = 0.5

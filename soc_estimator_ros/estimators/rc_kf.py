@@ -25,7 +25,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from ..models.rc_saft import SaftRcModel
-from .base import MAX_SOC_VAR, Estimator
+from ..units import MAX_SOC_VAR
+from .base import Estimator
 from .filterpy_state import FilterpyState
 
 

@@ -60,6 +60,7 @@ import yaml
 from ..errors import SocEstimatorError
 from ..health import HealthState
 from ..models.hysteresis import HysteresisState
+from ..units import MAX_SOC_VAR
 
 FORMAT_VERSION = 1
 
@@ -322,8 +323,10 @@ def load_state(path: Path | str) -> SavedState:
     if not 0.0 <= soc <= 1.0:
         raise StateFileError(p, f"soc = {soc!r}: expected a fraction in [0, 1]")
     soc_var = _number(p, raw, "soc_var")
-    if not 0.0 < soc_var <= 1.0:
-        raise StateFileError(p, f"soc_var = {soc_var!r}: expected a variance in (0, 1]")
+    if not 0.0 < soc_var <= MAX_SOC_VAR:
+        raise StateFileError(
+            p, f"soc_var = {soc_var!r}: expected a variance in (0, {MAX_SOC_VAR:g}]"
+        )
     return SavedState(
         soc=soc,
         soc_var=soc_var,

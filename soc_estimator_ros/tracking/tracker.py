@@ -53,14 +53,14 @@ import numpy as np
 
 from ..cells import CellBank, CellEstimate
 from ..estimators import DEFAULT_ESTIMATOR, PRESETS, StepStatus, make_estimator
-from ..estimators.base import MAX_SOC_VAR, Estimate, Estimator
+from ..estimators.base import Estimate, Estimator
 from ..health import HealthMonitor, HealthState
 from ..models.coulomb import coulomb_efficiency
 from ..models.hysteresis import HysteresisState
 from ..models.thevenin import TheveninModel
 from ..params import BatteryParams
 from ..runtime.monitor import RuntimeConfig, RuntimeMonitor, RuntimeReport
-from ..units import NS_PER_S, SECONDS_PER_HOUR
+from ..units import MAX_SOC_VAR, NS_PER_S, SECONDS_PER_HOUR
 from .decimation import Decimator
 from .gate import GateConfig, InputGate, Verdict
 from .persistence import CellsState, ResumeDecision, SavedState
