@@ -38,6 +38,28 @@ from .models.thevenin import (
 
 SCHEMA_VERSION = 1
 CHEMISTRIES = ("sla", "lfp", "li_ion")
+#: Values no battery has, (lowest, highest); 0 as the lowest: any value > 0. A file holding
+#: one is refused with its key instead of running into NaN estimates or overflows (each bound
+#: was found so, by a fuzz of the bundled files). "Per cell": times ``cells_in_series``. The
+#: bundled files stay orders of magnitude inside: 2.8-5.8 Ah; 2.5-4.2 V per cell; at most
+#: 0.27 ohm per cell (the NCR18650PF's cold low-SoC branch); 0.08-5.4e6 F; saturation and
+#: exchange currents 0.4-575 A, current limits to 30 A; a kinetic scale to 0.06 V per cell.
+ABSURD = {
+    "capacity_ah": (1.0e-3, 1.0e5),
+    "voltage_v_per_cell": (0.0, 10.0),
+    "resistance_ohm_per_cell": (0.0, 100.0),
+    "capacitance_f": (1.0e-6, 1.0e10),
+    "current_a": (1.0e-6, 1.0e5),
+    "kinetic_scale_v_per_cell": (0.0, 1.0),
+    "temperature_c": (-100.0, 200.0),
+}
+#: The closest two SoC points of a table may be: closer, a curve's slope between them is
+#: infinite for the EKF's Jacobian (a fuzz found 0 and 1e-300).
+SOC_STEP_MIN = 1.0e-6
+#: Filter tunings (``filters.<estimator>.<entry>``) at most this large in magnitude: 1e9
+#: switches a gate off in the tests; 1e300 overflowed a variance (a squared std) in the
+#: hybrid.
+ABSURD_TUNING = 1.0e12
 
 
 class ParamFileError(SocEstimatorError, ValueError):
@@ -395,35 +417,65 @@ class _Checker:
             raise self.fail(key, value, f"a number <= {hi:g}")
         return v
 
-    def positive(self, value: Any, key: str) -> float:
-        return self.number(value, key, lo=0.0, lo_open=True)
+    def positive(self, value: Any, key: str, hi: float | None = None) -> float:
+        return self.number(value, key, lo=0.0, hi=hi, lo_open=True)
 
     def numbers(
-        self, value: Any, key: str, positive: bool = False, min_len: int = 1
+        self,
+        value: Any,
+        key: str,
+        positive: bool = False,
+        min_len: int = 1,
+        hi: float | None = None,
     ) -> tuple[float, ...]:
         if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
             raise self.fail(key, value, "a list of numbers")
         if len(value) < min_len:
             raise self.fail(key, value, f"a list of at least {min_len} numbers")
         if positive:
-            return tuple(self.positive(v, f"{key}[{i}]") for i, v in enumerate(value))
-        return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
+            return tuple(self.positive(v, f"{key}[{i}]", hi) for i, v in enumerate(value))
+        return tuple(self.number(v, f"{key}[{i}]", hi=hi) for i, v in enumerate(value))
 
-    def increasing(self, values: tuple[float, ...], key: str) -> None:
+    def within(self, value: Any, key: str, bounds: tuple[float, float]) -> float:
+        """A number in ``bounds`` (an :data:`ABSURD` range: a lowest of 0 means > 0)."""
+        lo, hi = bounds
+        if lo == 0.0:
+            return self.positive(value, key, hi)
+        return self.number(value, key, lo, hi)
+
+    def increasing(self, values: tuple[float, ...], key: str, min_step: float = 0.0) -> None:
+        """Strictly increasing, by at least ``min_step`` where given."""
         for i in range(1, len(values)):
             if values[i] <= values[i - 1]:
                 raise self.fail(
                     f"{key}[{i}]", values[i], f"a value > {values[i - 1]:g} (strictly increasing)"
                 )
+            if values[i] - values[i - 1] < min_step:
+                raise self.fail(
+                    f"{key}[{i}]",
+                    values[i],
+                    f"a value >= {values[i - 1] + min_step:g} (points {min_step:g} apart at least)",
+                )
 
     def table(
-        self, value: Any, key: str, soc: tuple[float, ...], temps: tuple[float, ...]
+        self,
+        value: Any,
+        key: str,
+        soc: tuple[float, ...],
+        temps: tuple[float, ...],
+        bounds: tuple[float, float],
     ) -> ParamTable:
-        """A positive table: 1-D over SoC (one temperature) or 2-D (temperature x SoC)."""
+        """A table of values in ``bounds`` (:meth:`within`): 1-D over SoC (one temperature) or
+        2-D (temperature x SoC)."""
+
+        def row(r: Any, where: str) -> tuple[float, ...]:
+            values = self.numbers(r, where)
+            return tuple(self.within(v, f"{where}[{i}]", bounds) for i, v in enumerate(values))
+
         if isinstance(value, Sequence) and value and isinstance(value[0], Sequence):
-            rows = [self.numbers(r, f"{key}[{i}]", positive=True) for i, r in enumerate(value)]
+            rows = [row(r, f"{key}[{i}]") for i, r in enumerate(value)]
         else:
-            rows = [self.numbers(value, key, positive=True)]
+            rows = [row(value, key)]
         if len(rows) != len(temps):
             raise self.fail(key, value, f"{len(temps)} rows, one per thevenin.temperature_c")
         for i, r in enumerate(rows):
@@ -447,11 +499,11 @@ def _parse_filters(chk: _Checker, node: Any) -> dict[str, dict[str, float | tupl
             key = f"filters.{est}.{name}"
             positive = str(name).startswith(("p0", "q", "r"))
             if isinstance(value, Sequence) and not isinstance(value, str):
-                parsed[str(name)] = chk.numbers(value, key, positive=positive)
+                parsed[str(name)] = chk.numbers(value, key, positive=positive, hi=ABSURD_TUNING)
             elif positive:
-                parsed[str(name)] = chk.positive(value, key)
+                parsed[str(name)] = chk.positive(value, key, ABSURD_TUNING)
             else:
-                parsed[str(name)] = chk.number(value, key)
+                parsed[str(name)] = chk.number(value, key, -ABSURD_TUNING, ABSURD_TUNING)
         out[str(est)] = parsed
     return out
 
@@ -544,26 +596,30 @@ def _parse_cells(chk: _Checker, root: Mapping[str, Any]) -> CellSettings:
 
 
 def _ocv_points(
-    chk: _Checker, node: Mapping[str, Any], key: str
+    chk: _Checker, node: Mapping[str, Any], key: str, bounds: tuple[float, float]
 ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """An OCV table's points (``ocv:``, ``rest_ocv:``): SoC in [0, 1] and volts, both
-    increasing, one voltage per SoC."""
+    """An OCV table's points (``ocv:``, ``rest_ocv:``): SoC in [0, 1] and volts in ``bounds``,
+    both increasing, one voltage per SoC."""
     soc = chk.numbers(chk.get(node, "soc", key), f"{key}.soc", min_len=2)
-    volts = chk.numbers(chk.get(node, "voltage_v", key), f"{key}.voltage_v", positive=True)
+    volts = chk.numbers(chk.get(node, "voltage_v", key), f"{key}.voltage_v")
+    volts = tuple(chk.within(v, f"{key}.voltage_v[{i}]", bounds) for i, v in enumerate(volts))
     if len(volts) != len(soc):
         raise chk.fail(f"{key}.voltage_v", volts, f"{len(soc)} values, one per {key}.soc point")
     for i, x in enumerate(soc):
         chk.number(x, f"{key}.soc[{i}]", 0.0, 1.0)
-    chk.increasing(soc, f"{key}.soc")
+    chk.increasing(soc, f"{key}.soc", SOC_STEP_MIN)
     chk.increasing(volts, f"{key}.voltage_v")
     return soc, volts
 
 
-def _parse_rest_ocv(chk: _Checker, root: Mapping[str, Any]) -> OcvTable | None:
-    """The optional ``rest_ocv:`` section (:attr:`BatteryParams.rest_ocv`)."""
+def _parse_rest_ocv(
+    chk: _Checker, root: Mapping[str, Any], bounds: tuple[float, float]
+) -> OcvTable | None:
+    """The optional ``rest_ocv:`` section (:attr:`BatteryParams.rest_ocv`), volts in
+    ``bounds``."""
     if "rest_ocv" not in root:
         return None
-    soc, volts = _ocv_points(chk, chk.mapping(root["rest_ocv"], "rest_ocv"), "rest_ocv")
+    soc, volts = _ocv_points(chk, chk.mapping(root["rest_ocv"], "rest_ocv"), "rest_ocv", bounds)
     return OcvTable(soc=soc, voltage_v=volts)
 
 
@@ -594,11 +650,20 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     chemistry = chk.get(root, "chemistry", "")
     if chemistry not in CHEMISTRIES:
         raise chk.fail("chemistry", chemistry, f"one of {', '.join(CHEMISTRIES)}")
-    nominal = chk.positive(chk.get(root, "nominal_capacity_ah", ""), "nominal_capacity_ah")
-    capacity = chk.positive(root.get("capacity_ah", nominal), "capacity_ah")
+    nominal = chk.within(
+        chk.get(root, "nominal_capacity_ah", ""), "nominal_capacity_ah", ABSURD["capacity_ah"]
+    )
+    capacity = chk.within(root.get("capacity_ah", nominal), "capacity_ah", ABSURD["capacity_ah"])
     cells = chk.get(root, "cells_in_series", "")
     if isinstance(cells, bool) or not isinstance(cells, int) or cells < 1:
         raise chk.fail("cells_in_series", cells, "an integer >= 1")
+    # ABSURD's ranges for this pack (its "per cell" ones times the cells in series).
+    absurd = {
+        k.removesuffix("_per_cell"): (lo * cells, hi * cells)
+        if k.endswith("_per_cell")
+        else (lo, hi)
+        for k, (lo, hi) in ABSURD.items()
+    }
     eta = chk.number(
         chk.get(root, "coulomb_efficiency_charge", ""), "coulomb_efficiency_charge", 0.5, 1.0
     )
@@ -607,16 +672,25 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         raise chk.fail("source", source_text, "a string")
 
     lim = chk.mapping(chk.get(root, "limits", ""), "limits")
-    vmin = chk.positive(chk.get(lim, "voltage_min_v", "limits"), "limits.voltage_min_v")
-    vmax = chk.positive(chk.get(lim, "voltage_max_v", "limits"), "limits.voltage_max_v")
+    vmin = chk.within(
+        chk.get(lim, "voltage_min_v", "limits"), "limits.voltage_min_v", absurd["voltage_v"]
+    )
+    vmax = chk.within(
+        chk.get(lim, "voltage_max_v", "limits"), "limits.voltage_max_v", absurd["voltage_v"]
+    )
     if vmax <= vmin:
         raise chk.fail("limits.voltage_max_v", vmax, f"a value > limits.voltage_min_v ({vmin:g})")
     soc_min = chk.number(chk.get(lim, "soc_min", "limits"), "limits.soc_min", 0.0, 1.0)
     soc_max = chk.number(chk.get(lim, "soc_max", "limits"), "limits.soc_max", 0.0, 1.0)
     if soc_max <= soc_min:
         raise chk.fail("limits.soc_max", soc_max, f"a value > limits.soc_min ({soc_min:g})")
-    tmin = chk.number(chk.get(lim, "temperature_min_c", "limits"), "limits.temperature_min_c")
-    tmax = chk.number(chk.get(lim, "temperature_max_c", "limits"), "limits.temperature_max_c")
+    t_range = absurd["temperature_c"]
+    tmin = chk.within(
+        chk.get(lim, "temperature_min_c", "limits"), "limits.temperature_min_c", t_range
+    )
+    tmax = chk.within(
+        chk.get(lim, "temperature_max_c", "limits"), "limits.temperature_max_c", t_range
+    )
     if tmax <= tmin:
         raise chk.fail("limits.temperature_max_c", tmax, f"a value > {tmin:g}")
     limits = Limits(
@@ -624,22 +698,28 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         voltage_max_v=vmax,
         soc_min=soc_min,
         soc_max=soc_max,
-        current_max_discharge_a=chk.positive(
-            chk.get(lim, "current_max_discharge_a", "limits"), "limits.current_max_discharge_a"
+        current_max_discharge_a=chk.within(
+            chk.get(lim, "current_max_discharge_a", "limits"),
+            "limits.current_max_discharge_a",
+            absurd["current_a"],
         ),
-        current_max_charge_a=chk.positive(
-            chk.get(lim, "current_max_charge_a", "limits"), "limits.current_max_charge_a"
+        current_max_charge_a=chk.within(
+            chk.get(lim, "current_max_charge_a", "limits"),
+            "limits.current_max_charge_a",
+            absurd["current_a"],
         ),
         temperature_min_c=tmin,
         temperature_max_c=tmax,
     )
 
     ocv_node = chk.mapping(chk.get(root, "ocv", ""), "ocv")
-    ocv_soc, ocv_v = _ocv_points(chk, ocv_node, "ocv")
+    ocv_soc, ocv_v = _ocv_points(chk, ocv_node, "ocv", absurd["voltage_v"])
     ocv_temps: tuple[float, ...] = ()
     ocv_offsets: tuple[tuple[float, ...], ...] = ()
     if "temperature_c" in ocv_node or "offset_v" in ocv_node:
         ocv_temps = chk.numbers(chk.get(ocv_node, "temperature_c", "ocv"), "ocv.temperature_c")
+        for i, t in enumerate(ocv_temps):
+            chk.within(t, f"ocv.temperature_c[{i}]", t_range)
         chk.increasing(ocv_temps, "ocv.temperature_c")
         rows = chk.get(ocv_node, "offset_v", "ocv")
         if (
@@ -661,19 +741,43 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
     rc = chk.mapping(chk.get(root, "rc_model", ""), "rc_model")
     rc_params = RcModelParams(
         **{
-            k: chk.positive(chk.get(rc, k, "rc_model"), f"rc_model.{k}")
-            for k in ("c_b_f", "c_s_f", "r_b_ohm", "r_s_ohm", "r_t_ohm")
+            k: chk.within(chk.get(rc, k, "rc_model"), f"rc_model.{k}", absurd[unit])
+            for k, unit in (
+                ("c_b_f", "capacitance_f"),
+                ("c_s_f", "capacitance_f"),
+                ("r_b_ohm", "resistance_ohm"),
+                ("r_s_ohm", "resistance_ohm"),
+                ("r_t_ohm", "resistance_ohm"),
+            )
         }
     )
+    # Seed 000's terminal-voltage state relaxes at a33 = R_s / (C_b R_b s) - 1 / (C_s s)
+    # (models/rc_saft.py): stable only while the surface capacitor is the faster one.
+    tau_s, tau_b = rc_params.c_s_f * rc_params.r_s_ohm, rc_params.c_b_f * rc_params.r_b_ohm
+    if not tau_s < tau_b:
+        raise chk.fail(
+            "rc_model.c_s_f",
+            rc_params.c_s_f,
+            f"c_s_f r_s_ohm ({tau_s:g} s) < c_b_f r_b_ohm ({tau_b:g} s): the model is unstable "
+            "otherwise",
+        )
 
     th = chk.mapping(chk.get(root, "thevenin", ""), "thevenin")
     th_soc = chk.numbers(chk.get(th, "soc", "thevenin"), "thevenin.soc")
     for i, s in enumerate(th_soc):
         chk.number(s, f"thevenin.soc[{i}]", 0.0, 1.0)
-    chk.increasing(th_soc, "thevenin.soc")
+    chk.increasing(th_soc, "thevenin.soc", SOC_STEP_MIN)
     temps = chk.numbers(th.get("temperature_c", [25.0]), "thevenin.temperature_c")
+    for i, t in enumerate(temps):
+        chk.within(t, f"thevenin.temperature_c[{i}]", t_range)
     chk.increasing(temps, "thevenin.temperature_c")
-    r0 = chk.table(chk.get(th, "r0_ohm", "thevenin"), "thevenin.r0_ohm", th_soc, temps)
+    r0 = chk.table(
+        chk.get(th, "r0_ohm", "thevenin"),
+        "thevenin.r0_ohm",
+        th_soc,
+        temps,
+        absurd["resistance_ohm"],
+    )
     branches_node = chk.get(th, "branches", "thevenin")
     if isinstance(branches_node, (str, bytes)) or not isinstance(branches_node, Sequence):
         raise chk.fail("thevenin.branches", branches_node, "a list of {r_ohm, c_f} branches")
@@ -685,12 +789,22 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         bm = chk.mapping(b, key)
         branches.append(
             RcBranch(
-                r_ohm=chk.table(chk.get(bm, "r_ohm", key), f"{key}.r_ohm", th_soc, temps),
-                c_f=chk.table(chk.get(bm, "c_f", key), f"{key}.c_f", th_soc, temps),
+                r_ohm=chk.table(
+                    chk.get(bm, "r_ohm", key),
+                    f"{key}.r_ohm",
+                    th_soc,
+                    temps,
+                    absurd["resistance_ohm"],
+                ),
+                c_f=chk.table(
+                    chk.get(bm, "c_f", key), f"{key}.c_f", th_soc, temps, absurd["capacitance_f"]
+                ),
                 i_sat_a=(
                     None
                     if bm.get("i_sat_a") is None
-                    else chk.table(bm["i_sat_a"], f"{key}.i_sat_a", th_soc, temps)
+                    else chk.table(
+                        bm["i_sat_a"], f"{key}.i_sat_a", th_soc, temps, absurd["current_a"]
+                    )
                 ),
             )
         )
@@ -701,9 +815,13 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         kinetic = KineticParams(
             *(
                 chk.table(
-                    chk.get(km, k, "thevenin.kinetic"), f"thevenin.kinetic.{k}", th_soc, temps
+                    chk.get(km, k, "thevenin.kinetic"),
+                    f"thevenin.kinetic.{k}",
+                    th_soc,
+                    temps,
+                    absurd[unit],
                 )
-                for k in ("a_v", "i0_a")
+                for k, unit in (("a_v", "kinetic_scale_v"), ("i0_a", "current_a"))
             )
         )
 
@@ -760,7 +878,7 @@ def parse_battery_params(raw: Any, source: str = "<memory>") -> BatteryParams:
         coulomb_efficiency_charge=eta,
         limits=limits,
         ocv=OcvTable(soc=ocv_soc, voltage_v=ocv_v, temperature_c=ocv_temps, offset_v=ocv_offsets),
-        rest_ocv=_parse_rest_ocv(chk, root),
+        rest_ocv=_parse_rest_ocv(chk, root, absurd["voltage_v"]),
         hysteresis=_parse_hysteresis(chk, root),
         rc_model=rc_params,
         thevenin=TheveninParams(

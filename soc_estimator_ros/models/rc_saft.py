@@ -31,7 +31,11 @@ Where the paper is wrong:
   rested pack with V_o = V_cb = V_cs has dV_o/dt = 0). Check any transcription against -A33;
 * eq. 1 drops the ``R_eq dI/dt`` term: with V_o as a state, a current step moves V_o
   instantly by R_eq times the step, which no finite A, B can produce. The discrete model here
-  restores it exactly as a feed-through of the current increment (see :meth:`discretize`).
+  restores it exactly as a feed-through of the current increment (see :meth:`discretize`);
+* V_o as a third state adds a mode the circuit has not (the circuit's are 0 and
+  ``-(1/C_b + 1/C_s)/S``): A33, excited by any filter update that moves V_o off the circuit's
+  value, and growing where A33 > 0, i.e. ``C_s R_s > C_b R_b`` (the surface capacitor the
+  slower). The battery file's parser refuses such a model (``params.py``).
 
 Discretization is exact for a current held constant between samples (zero-order hold) for any
 dt: ``[[F, g], [0, 1]] = expm([[A, B], [0, 0]] dt)``, then ``V_o`` jumps by
