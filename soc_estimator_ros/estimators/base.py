@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any, ClassVar
@@ -143,6 +143,12 @@ class Estimator(ABC):
     count_floor: ClassVar[bool] = False
     #: Tuning entries and their defaults; a battery file's ``filters.<name>`` overrides them.
     default_tuning: ClassVar[Mapping[str, Any]] = {}
+    #: Entries that must be > 0 (:meth:`merged_tuning`): a time constant or a gate the filter
+    #: divides by, a state's std that sets its variance (0 left the hybrid's covariance
+    #: singular). Every other number must be >= 0 but those in :attr:`signed_tuning`.
+    positive_tuning: ClassVar[frozenset[str]] = frozenset()
+    #: Entries of either sign (the UKF's ``kappa``).
+    signed_tuning: ClassVar[frozenset[str]] = frozenset()
     # Set by _init_state (FilterpyState makes them properties over a filterpy filter).
     x: np.ndarray
     p: np.ndarray
@@ -184,7 +190,9 @@ class Estimator(ABC):
     def merged_tuning(cls, tuning: Mapping[str, Any] | None) -> dict[str, Any]:
         """The tuning an estimator of this class runs with: ``default_tuning`` under the
         entries of ``tuning`` (a battery file's ``filters.<name>`` block), tuples as floats;
-        an unknown entry or a tuple of the wrong length is a ``ValueError``."""
+        an unknown entry, a list where a number belongs or the reverse, a tuple of the wrong
+        length, or a number out of its entry's domain (:attr:`positive_tuning`,
+        :attr:`signed_tuning`, else >= 0; NaN never) is a ``ValueError``."""
         merged = dict(cls.default_tuning)
         for key, value in (tuning or {}).items():
             if key not in merged:
@@ -192,14 +200,31 @@ class Estimator(ABC):
                     f"{cls.name}: unknown tuning entry {key!r}; known: {sorted(merged)}"
                 )
             default = merged[key]
+            listed = isinstance(value, (Sequence, np.ndarray)) and not isinstance(value, str)
             if isinstance(default, tuple):
-                value = tuple(float(v) for v in value)
-                if len(value) != len(default):
+                if not listed or len(value) != len(default):
                     raise ValueError(
-                        f"{cls.name}: tuning {key!r} needs {len(default)} values, got {value}"
+                        f"{cls.name}: tuning {key!r} needs {len(default)} values, got {value!r}"
                     )
+                value = tuple(float(v) for v in value)
+            elif listed:
+                raise ValueError(f"{cls.name}: tuning {key!r} needs one number, got {value!r}")
             merged[key] = value
+            cls._check_domain(key, value)
         return merged
+
+    @classmethod
+    def _check_domain(cls, key: str, value: Any) -> None:
+        """``value`` (a number, or each of a tuple's) is in the domain of entry ``key``."""
+        for v in value if isinstance(value, tuple) else (value,):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise ValueError(f"{cls.name}: tuning {key!r} needs a number, got {v!r}")
+            if v != v:
+                raise ValueError(f"{cls.name}: tuning {key!r} is NaN")
+            if key in cls.positive_tuning and not v > 0.0:
+                raise ValueError(f"{cls.name}: tuning {key!r} must be > 0, got {v!r}")
+            if key not in cls.signed_tuning and not v >= 0.0:
+                raise ValueError(f"{cls.name}: tuning {key!r} must be >= 0, got {v!r}")
 
     def _new_floor_count(self) -> ChargeCount:
         """The count of :attr:`count_floor`, with the file's count error budget (the guard's:

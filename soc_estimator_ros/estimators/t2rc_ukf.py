@@ -163,6 +163,8 @@ class T2rcUkf(FilterpyState, Estimator):
         "beta": 2.0,
         "kappa": 0.0,
     }
+    positive_tuning = frozenset({"alpha"})  # the sigma points' spread divides the weights
+    signed_tuning = frozenset({"kappa"})
 
     def _make_model(self) -> TheveninModel:
         return self.battery.thevenin_model()
@@ -170,6 +172,13 @@ class T2rcUkf(FilterpyState, Estimator):
     def _init_state(self, soc: float, soc_var: float) -> None:
         if not hasattr(self, "kf"):
             self.model = self._make_model()
+            q_len, model_dim = len(self.tuning["q_diag"]), self.model.dim_x
+            if q_len != model_dim:  # the tuning's q_diag is the 2-RC model's (SoC, V_1, V_2)
+                raise ValueError(
+                    f"{self.name}: its tuning is for a {q_len - 1}-RC model (q_diag), the "
+                    f"battery file's has {model_dim - 1} RC branch(es): use a 2-RC file, or "
+                    "ekf, rc_kf or coulomb"
+                )
             n = self._rested_state(0.5).size
             points = BatchMerweScaledSigmaPoints(
                 n, self.tuning["alpha"], self.tuning["beta"], self._sigma_kappa()

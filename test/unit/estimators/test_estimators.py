@@ -72,6 +72,51 @@ def test_factory_errors() -> None:
         make_estimator("hybrid", SLA, 1.5)
 
 
+@pytest.mark.parametrize(
+    ("name", "tuning", "fragment"),
+    [
+        # Each of these passed the file's number check and then failed on every sample (a
+        # singular covariance, a division by zero, a list multiplied) or gave NaN estimates.
+        ("hybrid", {"bias_std_v": 0.0}, "'bias_std_v' must be > 0"),
+        ("hybrid", {"nis_tau_s": -60.0}, "'nis_tau_s' must be > 0"),
+        ("hybrid", {"grid_points": 1}, "'grid_points' needs >= 2"),
+        ("hybrid", {"model_prior": -0.9}, "'model_prior' must be >= 0"),
+        ("t2rc_ukf", {"alpha": 0.0}, "'alpha' must be > 0"),
+        ("t2rc_ukf", {"kappa": math.nan}, "'kappa' is NaN"),
+        ("coulomb", {"current_std_a": [1.0]}, "'current_std_a' needs one number"),
+        ("ekf", {"q_diag": 1e-6}, "'q_diag' needs 2 values"),
+        ("rc_kf", {"q_diag": (1e-9, -1e-5, 1e-3)}, "'q_diag' must be >= 0"),
+    ],
+)
+def test_a_tuning_outside_its_domain_is_refused_when_built(name, tuning, fragment) -> None:
+    with pytest.raises(ValueError, match=fragment):
+        make_estimator(name, SLA, 0.8, 0.1, tuning=tuning)
+
+
+def test_signed_and_zero_tunings_where_they_mean_something() -> None:
+    make_estimator("t2rc_ukf", SLA, 0.8, 0.1, tuning={"kappa": -0.5})  # the UKF's, signed
+    # 0 switches a part off: the OCV axis' error, the wide start's grid, the resistance state.
+    off = {"ocv_axis_std_frac": 0.0, "grid_soc_std_min": 0.0, "resistance_std_frac": 0.0}
+    est = make_estimator("hybrid", SLA, 0.8, 0.1, tuning=off)
+    assert est.step(0.0, 1.0, 12.6, 25.0).soc == pytest.approx(0.8, abs=0.05)
+
+
+def test_the_ukf_filters_refuse_a_model_of_another_branch_count() -> None:
+    """The parser takes 1-3 RC branches (the papers' EKF and RC+KF run their own models);
+    the UKFs' tuning is the 2-RC model's, so they say so when built instead of failing on
+    every sample."""
+    for branches in (SLA.thevenin.branches[:1], (*SLA.thevenin.branches, SLA.thevenin.branches[1])):
+        other = replace(SLA, thevenin=replace(SLA.thevenin, branches=branches))
+        for name in ("t2rc_ukf", "hybrid"):
+            with pytest.raises(ValueError, match=f"has {len(branches)} RC branch"):
+                make_estimator(name, other, 0.8, 0.1)
+        for name in ("ekf", "dcc_ekf", "rc_kf", "coulomb"):
+            est = make_estimator(name, other, 0.8, 0.1)
+            for k in range(3):
+                out = est.step(float(k), 1.0, 12.6, 25.0)
+            assert 0.0 <= out.soc <= 1.0 and 0.0 < out.soc_var < 1.0, name
+
+
 def test_kf_step_matches_hand_computation() -> None:
     est = make_estimator("rc_kf", SLA, 0.8, 0.05)
     est.step(0.0, 4.0, 12.40)  # initializes and updates once
