@@ -252,7 +252,9 @@ class SocEstimatorNode(Node):
         )
         health = None
         if config.health and self.state_file is not None:
-            health, reason = resume_health(self.state_file, self.battery.name)
+            health, reason = resume_health(
+                self.state_file, self.battery.name, self.battery.capacity_ah
+            )
             self.get_logger().info(reason)
         resume = None
         if self.state_file is not None:

@@ -285,7 +285,7 @@ def replay_estimator(
     start's std ``initial_soc_std``)."""
     saved, health_start = None, ""
     if state is not None:
-        saved, health_start = resume_health(state, battery.name)
+        saved, health_start = resume_health(state, battery.name, battery.capacity_ah)
     tracker = Tracker(
         battery,
         GateConfig.from_limits(battery.limits),

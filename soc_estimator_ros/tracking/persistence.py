@@ -396,10 +396,20 @@ def resume_decision(
     )
 
 
-def resume_health(path: Path | str, battery: str) -> tuple[HealthState | None, str]:
-    """The health saved in ``path`` for ``battery``, whatever the file's age, and why (for the
-    log): None when the file is absent or unusable (left in place: :func:`resume_decision`
-    sets it aside), holds no health, or belongs to another battery."""
+#: A saved health outside these is not this pack's (a corrupted or edited file): its capacity
+#: over the battery file's (a pack at a fifth of its capacity is long dead; twice it, another
+#: pack), its ``R_0`` factor (the bundled aged LFP pack learns 10.7: its film's growth all
+#: lands on the file's small ``R_0``, docs/architecture.md#health).
+HEALTH_PLAUSIBLE = {"soh": (0.2, 2.0), "r0_factor": (0.01, 100.0)}
+
+
+def resume_health(
+    path: Path | str, battery: str, file_capacity_ah: float
+) -> tuple[HealthState | None, str]:
+    """The health saved in ``path`` for ``battery`` (whose file's capacity is
+    ``file_capacity_ah``), whatever the file's age, and why (for the log): None when the file is
+    absent or unusable (left in place: :func:`resume_decision` sets it aside), holds no health,
+    belongs to another battery, or is implausible for it (:data:`HEALTH_PLAUSIBLE`)."""
     try:
         state = load_state(path)
     except StateFileError as exc:
@@ -409,6 +419,15 @@ def resume_health(path: Path | str, battery: str) -> tuple[HealthState | None, s
     if state.health is None:
         return None, f"no saved health in {path}"
     h = state.health
+    soh = h.capacity_ah / file_capacity_ah
+    (soh_lo, soh_hi), (r0_lo, r0_hi) = HEALTH_PLAUSIBLE["soh"], HEALTH_PLAUSIBLE["r0_factor"]
+    if not (soh_lo <= soh <= soh_hi and r0_lo <= h.r0_factor <= r0_hi):
+        return None, (
+            f"saved health in {path} is not this pack's: capacity {h.capacity_ah:g} Ah "
+            f"({soh:.3g} of the file's {file_capacity_ah:g} Ah; {soh_lo:g}-{soh_hi:g} "
+            f"plausible), R0 factor {h.r0_factor:g} ({r0_lo:g}-{r0_hi:g}): starting from the "
+            "file's values"
+        )
     return h, (
         f"health from {path}: capacity {h.capacity_ah:.3f} Ah "
         f"(std {math.sqrt(h.capacity_var_ah2):.3f}), R0 factor {h.r0_factor:.3f} "

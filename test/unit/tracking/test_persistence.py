@@ -185,14 +185,21 @@ def test_health_resumes_whatever_its_age_for_the_same_battery_only(tmp_path: Pat
     save_state(path, SavedState(**{**STATE.__dict__, "health": HEALTH}))
     week_s = 7 * 86400.0
     assert not resume_decision(path, STATE.stamp_s + week_s, 3600.0, STATE.battery).resume
-    health, reason = resume_health(path, STATE.battery)
+    health, reason = resume_health(path, STATE.battery, 5.0)
     assert health == HEALTH and "capacity 4.710 Ah" in reason and "SLA-0042" in reason
-    other, reason = resume_health(path, "another pack")
+    other, reason = resume_health(path, "another pack", 5.0)
     assert other is None and "another pack" in reason
     save_state(path, STATE)
-    assert resume_health(path, STATE.battery) == (None, f"no saved health in {path}")
-    missing, reason = resume_health(tmp_path / "none.yaml", STATE.battery)
+    assert resume_health(path, STATE.battery, 5.0) == (None, f"no saved health in {path}")
+    missing, reason = resume_health(tmp_path / "none.yaml", STATE.battery, 5.0)
     assert missing is None and "no such file" in reason
+    # A health no pack of this file has (a corrupted or edited file) is not applied: a
+    # capacity of 1e300 Ah held the SoC still; an R0 factor of 1000.
+    for change in ({"capacity_ah": 1e300}, {"capacity_ah": 0.5}, {"r0_factor": 1000.0}):
+        odd = HealthState(**{**HEALTH.__dict__, **change})
+        save_state(path, SavedState(**{**STATE.__dict__, "health": odd}))
+        none, reason = resume_health(path, STATE.battery, 5.0)
+        assert none is None and "not this pack's" in reason and "file's values" in reason
 
 
 CELLS = CellsState(
