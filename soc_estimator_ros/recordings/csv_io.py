@@ -19,10 +19,18 @@ def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:
 
     Other columns are ignored. A row whose ``time_s`` equals the previous row's is a cell
     tester's second record of a step boundary: the last record of that instant is kept and the
-    count of dropped rows is in ``repeated_stamps``. Time running backwards is an error.
+    count of dropped rows is in ``repeated_stamps``. A field missing from a short row (a logger
+    stopped mid-line) reads as NaN, as an empty one does: the sample is then rejected where it
+    is replayed, and counted. Time running backwards or not a number, and a file that is not
+    text, are errors.
     """
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except UnicodeDecodeError as exc:
+        raise RecordingError(
+            path, f"not a text CSV file ({exc.reason} at byte {exc.start})"
+        ) from exc
     if not rows:
         raise RecordingError(path, "no data rows")
     missing = {"time_s", "current_a", "voltage_v"} - set(rows[0])
@@ -33,13 +41,17 @@ def read_csv(path: Path, sign: CurrentSign) -> BatterySeries:
         if name not in rows[0]:
             return np.full(len(rows), math.nan)
         try:
-            return np.array([float(r[name]) if r[name] != "" else math.nan for r in rows])
+            return np.array(
+                [float(r[name]) if r[name] not in ("", None) else math.nan for r in rows]
+            )
         except ValueError as exc:
             raise RecordingError(path, f"column {name}: {exc}") from exc
 
     t = col("time_s")
+    if not math.isfinite(t[0]):
+        raise RecordingError(path, f"time_s must be a finite number (row 2: {t[0]})")
     dt = np.diff(t)
-    if np.any(dt < 0) or not np.all(np.isfinite(t)):
+    if not np.all(dt >= 0):  # a decrease, or a NaN or infinite time
         k = int(np.argmax(~(dt >= 0))) + 1
         raise RecordingError(
             path, f"time_s must not decrease (row {k + 2}: {t[k]} after {t[k - 1]})"

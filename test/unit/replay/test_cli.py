@@ -187,6 +187,27 @@ def test_bad_samples_are_rejected_counted_and_the_run_stays_finite(tmp_path, cap
     assert np.all(np.isfinite(soc))
 
 
+def test_unusable_csv_files_give_one_clear_line_and_a_short_row_is_a_bad_sample(tmp_path, capsys):
+    """A fuzz of CSV inputs found two tracebacks: a file that is not text, and a row cut
+    short (a logger stopped mid-line). The first is one line now; the second's missing
+    fields read as NaN, so the sample is rejected and counted as an empty field is."""
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(b"time_s,current_a,voltage_v\n" + bytes(range(128, 256)))
+    code, _, err = run([str(binary), "--params", str(_sla())], capsys)
+    assert code == 2 and "not a text CSV file" in err and err.count("\n") == 1
+    no_time = tmp_path / "no_time.csv"
+    no_time.write_text("time_s,current_a,voltage_v\nx,1.0,12.5\n")
+    code, _, err = run([str(no_time), "--params", str(_sla())], capsys)
+    assert code == 2 and "time_s" in err and err.count("\n") == 1
+    src = write_excerpt(tmp_path / "run.csv")
+    lines = src.read_text().splitlines()
+    lines[100] = lines[100].split(",")[0]  # time only: current and voltage missing
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines) + "\n")
+    code, out, _ = run([str(short), "--params", str(_sla())], capsys)
+    assert code == 0 and "non_finite 1" in out
+
+
 def test_a_run_without_a_finite_estimate_is_an_error(tmp_path, capsys):
     voltage = np.full(N, np.nan)  # every sample rejected: no estimate at all
     src = write_excerpt(tmp_path / "all_nan.csv", voltage)
