@@ -250,6 +250,7 @@ class Diagnostics:
                 ("health_pairs_used", health.pairs_used),
                 ("health_pairs_rejected", health.pairs_rejected),
                 ("health_serial_number", health.serial_number or "none"),
+                ("health_serial_unconfirmed", tr.serial_unconfirmed),
             ]
         if tr.hysteresis is not None:  # the OCV's hysteresis (models/hysteresis.py)
             values += [

@@ -69,6 +69,10 @@ from .persistence import CellsState, ResumeDecision, SavedState
 MIN_INIT_SOC_STD = 1e-3
 #: Jumped samples needed (besides ``rebase_after_s`` for backward jumps) to re-anchor time.
 REBASE_MIN_SAMPLES = 3
+#: Samples in a row that must carry another serial number than the health's, once running,
+#: before it is another pack: a garbled or flapping serial field (two BMS on one topic, a
+#: noisy UART) reset the learned health on every glitch.
+SERIAL_CONFIRM_SAMPLES = 3
 #: Accepted intervals used to estimate the source's sample period (median).
 PERIOD_WINDOW = 50
 
@@ -226,6 +230,9 @@ class Tracker:
         #: Grows on every change of the estimate (a save is due when it moved since the last).
         self.revision = 0
         self.missing_samples = 0
+        #: Samples whose serial number differed from the health's without (yet) persisting.
+        self.serial_unconfirmed = 0
+        self._serial_run: tuple[str, int] = ("", 0)
         self._stale_since_s: float | None = None
         self._stale_run = 0
         self._jump_run: list[int] = []
@@ -668,14 +675,26 @@ class Tracker:
 
     def pack_serial(self, serial_number: str) -> Event | None:
         """The input's ``serial_number``: the health's pack takes a first one; another one
-        than the health's is another pack (:meth:`new_pack`, and the event says so)."""
+        than the health's is another pack (:meth:`new_pack`, and the event says so), at once
+        before the first accepted sample (the pack the robot booted with), else once it has
+        come on :data:`SERIAL_CONFIRM_SAMPLES` samples in a row (until then each is counted in
+        :attr:`serial_unconfirmed`)."""
         h = self.health
         if h is None or not serial_number or serial_number == h.serial_number:
+            self._serial_run = ("", 0)
             return None
         if not h.serial_number:
             h.serial_number = serial_number
             self.revision += 1
             return None
+        if self.started:
+            seen, run = self._serial_run
+            run = run + 1 if seen == serial_number else 1
+            self._serial_run = (serial_number, run)
+            if run < SERIAL_CONFIRM_SAMPLES:
+                self.serial_unconfirmed += 1
+                return None
+        self._serial_run = ("", 0)
         old = h.serial_number
         self.new_pack(serial_number)
         return Event(

@@ -262,3 +262,33 @@ def test_what_is_saved_is_always_loadable(tmp_path: Path) -> None:
     path = tmp_path / "s.yaml"
     save_state(path, SavedState(tracker.soc, tracker.soc_var, 0.0, "coulomb", SLA.name))
     assert load_state(path).soc_var == 1.0
+
+
+def test_another_serial_number_is_another_pack_only_once_it_persists() -> None:
+    """A garbled or flapping serial field (two BMS on one topic, a noisy UART) reset the learned
+    health on every glitch; once running, another serial number is another pack only after
+    SERIAL_CONFIRM_SAMPLES samples in a row, and each glitch is counted."""
+    from soc_estimator_ros.tracking.tracker import SERIAL_CONFIRM_SAMPLES
+
+    tracker, clock = make(TrackerConfig(estimator="coulomb", initial_soc=0.7, health=True))
+    assert tracker.health is not None
+    events = []
+
+    def sample(k: int, serial: str) -> None:
+        clock.t += 0.1
+        event = tracker.pack_serial(serial)
+        if event is not None:
+            events.append(event)
+        tracker.process(Sample(T0_NS + k * PERIOD_NS, 1.0, 12.6, 25.0))
+
+    sample(0, "A")
+    assert tracker.health.serial_number == "A"
+    health = tracker.health.capacity
+    for k, serial in enumerate(["B", "A", "B", "", "B", "A"], start=1):
+        sample(k, serial)
+    assert tracker.health.serial_number == "A" and tracker.health.capacity is health
+    assert tracker.serial_unconfirmed == 3 and not events  # the three lone "B"s
+    for k in range(7, 7 + SERIAL_CONFIRM_SAMPLES):
+        sample(k, "B")
+    assert tracker.health.serial_number == "B" and tracker.health.capacity is not health
+    assert len(events) == 1 and "'A' -> 'B'" in events[0].message
