@@ -48,6 +48,7 @@ from ..params import (
     BatteryParams,
     battery_params_to_dict,
     load_battery_params,
+    parse_battery_params,
 )
 from ..recordings import add_recording_arguments, read_recording
 from ..resources import BUNDLED_FILES, bundled_file
@@ -72,10 +73,21 @@ def load_test(
 
     ``reference_capacity_ah``: the capacity behind a CSV's ``soc_ref`` column (a tester's
     amp-hour counter); with it the charge is counted from the reference (logging gaps).
+    A sample whose current or voltage is not a finite number is an error: the fits and the
+    charge count need every one (the node and ``soc_replay`` reject and count such samples;
+    a lab test is repaired or run again).
     """
     if not path.exists():
         raise IdentificationError(f"{path}: no such file or bag")
     series = read_recording(path, topic, sign, reference_topic=None)
+    bad = ~(np.isfinite(series.current_a) & np.isfinite(series.voltage_v))
+    if np.any(bad):
+        first = int(np.argmax(bad))
+        raise IdentificationError(
+            f"{path}: {int(np.count_nonzero(bad))} sample(s) with a current or voltage that is "
+            f"not a finite number, the first at t = {series.t_s[first]:g} s: the fits need "
+            "every sample (repair the test or cut it there)"
+        )
     if reference_capacity_ah is not None and series.soc_ref is not None:
         series = replace(series, reference_capacity_ah=reference_capacity_ah)
     return series
@@ -327,6 +339,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.capacity_measured and args.capacity_ah is None:
         ap.error("--capacity-measured says how --capacity-ah was obtained: give --capacity-ah")
     sign = CurrentSign(args.current_sign)
+    if not args.output.parent.is_dir():  # said before the fits, not after them
+        print(
+            f"soc_identify: error: no directory {args.output.parent} for --output", file=sys.stderr
+        )
+        return 2
     try:
         template = load_battery_params(args.template or bundled_file(args.chemistry))
         if template.chemistry != args.chemistry:
@@ -382,8 +399,14 @@ def main(argv: list[str] | None = None) -> int:
     data = battery_params_to_dict(battery)
     data["source"] = f"identified by soc_identify from {names}"
     text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
-    args.output.write_text(header + text)
-    load_battery_params(args.output)  # what was written loads as is
+    try:
+        # What is written loads as is: checked before writing, so a fit the battery files'
+        # checks refuse (a value no battery has) leaves no file behind.
+        parse_battery_params(yaml.safe_load(text), str(args.output))
+        args.output.write_text(header + text)
+    except (SocEstimatorError, OSError) as exc:
+        print(f"soc_identify: error: {exc}", file=sys.stderr)
+        return 2
     print(f"wrote {args.output}")
     if args.plot:
         assert results[0].test is not None  # identify() always sets it

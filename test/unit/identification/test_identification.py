@@ -405,6 +405,19 @@ def test_cli_on_csv_with_sign_flag(tmp_path: Path, capsys) -> None:
     # Without the flag the pulses look like charge: a one-line error, exit code 2.
     assert identify_main([str(csv_path), "--chemistry", "sla", "--output", str(out)]) == 2
     assert "wrong current sign" in capsys.readouterr().err
+    # An output that cannot be written: one line before any fit, exit code 2, no traceback.
+    flags = ["--chemistry", "sla", "--capacity-ah", "5", "--current-sign", "charge_positive"]
+    nowhere = str(tmp_path / "missing" / "p.yaml")
+    assert identify_main([str(csv_path), *flags, "--output", nowhere]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("soc_identify: error: no directory") and err.count("\n") == 1
+    # A block of NaN voltages (a logger's dropout) raised a ValueError from the OCV table, or
+    # wrote bias_std_v = nan: now one line naming the first such sample, before any fit.
+    rows[2000:2100] = [",".join([*r.split(",")[:2], "nan", "25.0"]) for r in rows[2000:2100]]
+    csv_path.write_text("\n".join(rows) + "\n")
+    assert identify_main([str(csv_path), *flags, "--output", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "100 sample(s)" in err and "not a finite number" in err and err.count("\n") == 1
 
 
 # -- on the physics-simulated bags ------------------------------------------------------------
