@@ -989,3 +989,14 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     if cells:
         out["cells"] = cells
     return out
+
+
+def write_battery_file(path: str | Path, data: Mapping[str, Any], header: str) -> None:
+    """Write ``data`` (:func:`battery_params_to_dict`'s form, perhaps edited) under the comment
+    lines ``header`` (each ending in a newline) to ``path``, checked first with every rule of
+    :func:`parse_battery_params`: a file that would not load is never written
+    (:class:`ParamFileError`; ``OSError`` where ``path`` cannot be written). The one writer of
+    ``soc_identify``'s and ``soc_tune``'s files."""
+    text = yaml.safe_dump(dict(data), sort_keys=False, width=100, default_flow_style=None)
+    parse_battery_params(yaml.safe_load(text), str(path))
+    Path(path).write_text(header + text)

@@ -41,14 +41,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import SocEstimatorError
 from ..params import (
     BatteryParams,
     battery_params_to_dict,
     load_battery_params,
-    parse_battery_params,
+    write_battery_file,
 )
 from ..recordings import add_recording_arguments, read_recording
 from ..resources import BUNDLED_FILES, bundled_file
@@ -398,12 +397,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     data = battery_params_to_dict(battery)
     data["source"] = f"identified by soc_identify from {names}"
-    text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
-    try:
-        # What is written loads as is: checked before writing, so a fit the battery files'
-        # checks refuse (a value no battery has) leaves no file behind.
-        parse_battery_params(yaml.safe_load(text), str(args.output))
-        args.output.write_text(header + text)
+    try:  # a fit the battery files' rules refuse (a value no battery has) writes nothing
+        write_battery_file(args.output, data, header)
     except (SocEstimatorError, OSError) as exc:
         print(f"soc_identify: error: {exc}", file=sys.stderr)
         return 2

@@ -33,11 +33,10 @@ from functools import cache
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import SocEstimatorError
 from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
-from ..params import battery_params_to_dict, load_battery_params
+from ..params import battery_params_to_dict, load_battery_params, write_battery_file
 from ..recordings import read_recording
 from ..replay.cli import expand_inputs
 from ..replay.fleet import run_on_dask
@@ -247,6 +246,9 @@ def _provenance(path: Path) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if not args.output.parent.is_dir():  # said before the search, not after it
+        print(f"soc_tune: error: no directory {args.output.parent} for --output", file=sys.stderr)
+        return 2
     try:
         inputs = expand_inputs(args.recordings)
         if any(isinstance(p, str) for p in inputs):
@@ -350,9 +352,11 @@ def main(argv: list[str] | None = None) -> int:
         f"# Regenerate: {command}\n"
         + "".join(f"# From {args.params.name}: {line[1:].lstrip()}\n" for line in provenance)
     )
-    text = yaml.safe_dump(data, sort_keys=False, width=100, default_flow_style=None)
-    args.output.write_text(header + text)
-    load_battery_params(args.output)  # what was written loads as is
+    try:  # a tuning the battery files' rules refuse writes nothing
+        write_battery_file(args.output, data, header)
+    except (SocEstimatorError, OSError) as exc:
+        print(f"soc_tune: error: {exc}", file=sys.stderr)
+        return 2
     print(f"wrote {args.output}")
     return 0
 

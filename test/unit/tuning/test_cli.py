@@ -164,6 +164,11 @@ def test_errors_are_one_line(excerpts, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and needle in err, err
     assert not (tmp_path / "x.yaml").exists()
+    # An --output nowhere is said before the search, not after it.
+    nowhere = ["--params", str(SLA), "--output", str(tmp_path / "missing" / "x.yaml")]
+    assert main([*map(str, excerpts), *nowhere]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("soc_tune: error: no directory") and err.count("\n") == 1
 
 
 def test_a_cached_search_resumes_and_computes_only_what_it_lacks(
