@@ -76,13 +76,14 @@ def implied_capacity_ah(series: BatterySeries, cutoff_v: float) -> float:
     return float((series.soc_ref[0] - series.soc_ref[hit[0]]) * series.reference_capacity_ah)
 
 
-def evaluate(job: tuple[str, Path, float, BatteryParams, float]) -> dict[str, object]:
-    """One (estimator, run): accuracy from the true start, convergence from the offsets."""
-    name, path, ref_ah, battery, capacity_ah = job
+def evaluate(job: tuple[str, Path, float, BatteryParams, float, float]) -> dict[str, object]:
+    """One (estimator, run): accuracy from the true start (std ``start_std``), convergence
+    from the offsets (std ``INITIAL_SOC_STD``)."""
+    name, path, ref_ah, battery, capacity_ah, start_std = job
     series = load(path, ref_ah)
     ref = reference_soc(series, capacity_ah)
     t0 = time.perf_counter()
-    est = make_estimator(name, battery, float(ref[0]), INITIAL_SOC_STD)
+    est = make_estimator(name, battery, float(ref[0]), start_std)
     out = run_estimator(est, series)
     acc = accuracy(out.t_s, out.soc, ref)
     row: dict[str, object] = {
@@ -120,7 +121,9 @@ def print_table(rows: list[dict[str, object]], extra: dict[str, str]) -> None:
     )
 
 
-def panasonic(data: Path, names: list[str], files: str, jobs: int) -> None:
+def panasonic(
+    data: Path, names: list[str], files: str, jobs: int, start_std: float = INITIAL_SOC_STD
+) -> None:
     hppc = [data / "panasonic18650pf_25C_HPPC.csv", data / "panasonic18650pf_0C_HPPC.csv"]
     template = load_battery_params(ROOT / "config" / "li_ion_ncr18650pf.yaml")
     t0 = time.perf_counter()
@@ -157,7 +160,11 @@ def panasonic(data: Path, names: list[str], files: str, jobs: int) -> None:
         extra[p.stem] = f"{end_ah:.3f} Ah removed" + (
             "" if math.isnan(q) else f", {q:.3f} Ah to the cut-off"
         )
-    work = [(n, p, PANASONIC_REF_AH, battery, battery.capacity_ah) for p in runs for n in names]
+    work = [
+        (n, p, PANASONIC_REF_AH, battery, battery.capacity_ah, start_std)
+        for p in runs
+        for n in names
+    ]
     with ProcessPoolExecutor(jobs) as pool:
         rows = list(pool.map(evaluate, work))
     print_table(rows, extra)
@@ -226,12 +233,19 @@ def main() -> int:
     ap.add_argument("--files", default="*", help="glob over the Panasonic drive-cycle files")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--skip-nissan", action="store_true")
+    ap.add_argument(
+        "--start-std",
+        type=float,
+        default=INITIAL_SOC_STD,
+        help="std of the Panasonic runs' true start (0.01: the node's FULL at the charger's end, "
+        "where every run starts)",
+    )
     args = ap.parse_args()
     if not (args.data / "panasonic18650pf_25C_HPPC.csv").is_file():
         print(f"real_data: skipped: no measured data in {args.data} (pass --data DIR)")
         return 0
     names = [n for n in args.estimators.split(",") if n]
-    panasonic(args.data, names, args.files, args.jobs)
+    panasonic(args.data, names, args.files, args.jobs, args.start_std)
     if not args.skip_nissan and (args.data / "nissanleaf_lmo_hppc_25C.csv").is_file():
         print()
         nissan(args.data, names, args.jobs)
