@@ -1095,7 +1095,8 @@ SPECS = [
 
 #: Not bundled (``--dev``, into a directory of your own): seeder missions from full to 20 %
 #: with seeds apart from the field runs', on which ``benchmarks/studies/table_transfer.py`` fits the
-#: 2RC's tables to see whether they carry over to the field runs (docs/identification.md).
+#: 2RC's tables to see whether they carry over to the field runs (docs/identification.md); the
+#: 4S Li-ion pack's pulse test at 5 degC (docs/cells.md, a cold pulse test in the Li-ion file).
 DEV_SPECS = [
     BagSpec(
         f"lfp_mission_{seed}",
@@ -1105,6 +1106,18 @@ DEV_SPECS = [
         description=f"Seeder mission from full to 20 % (seed {seed}; a dev bag, not bundled).",
     )
     for seed in (32, 34, 35, 36, 37, 38)
+] + [
+    BagSpec(
+        "li_ion4s_pulse_test_5c",
+        "li_ion",
+        "pulse_test",
+        33,
+        temp_c=5.0,
+        description="The pulse test of li_ion4s_pulse_test at 5 degC ambient (a dev bag: bags/ "
+        "has no room for it; docs/cells.md, what a cold pulse test gives the 4S Li-ion file).",
+        rate_hz=2.0,
+        tail_rate_hz=0.5,
+    )
 ]
 
 

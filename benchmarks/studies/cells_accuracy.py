@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,13 +66,19 @@ class CellScore:
     floor_mae: np.ndarray  # per cell: the pack and the start's deviations exact, capacities not
 
 
-def score_bag(bag: Path, initial_soc: str = "ocv", start_std: float = 0.1) -> CellScore:
+def score_bag(
+    bag: Path, initial_soc: str = "ocv", start_std: float = 0.1, params: Path | None = None
+) -> CellScore:
     """One mission through the replay's tracker (the node's path), started as
     ``soc_replay --initial-soc`` (``ocv``: the node's boot; ``ref``: the true start, with
-    std ``start_std``)."""
+    std ``start_std``), with the bundled file of its chemistry or ``params`` (a file of the
+    same chemistry)."""
     series = read_battery_bag(bag)
     meta = yaml.safe_load((bag / "bag.yaml").read_text())
-    battery = load_battery_params(ROOT / "config" / BATTERY_FILES[meta.get("chemistry", "lfp")])
+    chemistry = meta.get("chemistry", "lfp")
+    battery = load_battery_params(params or ROOT / "config" / BATTERY_FILES[chemistry])
+    if battery.chemistry != chemistry:
+        raise SystemExit(f"cells_accuracy: {params} is {battery.chemistry}, {bag.name} {chemistry}")
     assert series.cell_soc_ref is not None
     if initial_soc == "ref":  # the pack's filter estimates the average cell: start it there
         initial_soc = repr(float(np.mean(series.cell_soc_ref[0])))
@@ -132,6 +139,8 @@ def main(argv: list[str]) -> int:
         help="ocv (the node's boot, default) or ref (the cells' true mean)",
     )
     ap.add_argument("--start-std", type=float, default=0.1, help="ref: the start's std")
+    ap.add_argument("--params", type=Path, help="a battery file (default: the bundled one)")
+    ap.add_argument("--jobs", type=int, default=1, help="missions scored in parallel")
     args = ap.parse_args(argv)
     bags = args.bags or sorted((ROOT / "bags").glob("lfp4s_cells_*"))
     print(
@@ -140,10 +149,17 @@ def main(argv: list[str]) -> int:
         "pack MAE % | floor: cell MAE % |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
-    scores = []
-    for bag in bags:
-        s = score_bag(bag, args.initial_soc, args.start_std)
-        scores.append(s)
+    with ProcessPoolExecutor(max(1, args.jobs)) as pool:
+        scores = list(
+            pool.map(
+                score_bag,
+                bags,
+                [args.initial_soc] * len(bags),
+                [args.start_std] * len(bags),
+                [args.params] * len(bags),
+            )
+        )
+    for s in scores:
         cut = (
             "-"
             if s.usable_at_cutoff_est is None or s.usable_at_cutoff_true is None
