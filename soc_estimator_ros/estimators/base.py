@@ -149,6 +149,8 @@ class Estimator(ABC):
     positive_tuning: ClassVar[frozenset[str]] = frozenset()
     #: Entries of either sign (the UKF's ``kappa``).
     signed_tuning: ClassVar[frozenset[str]] = frozenset()
+    #: Entries with a smallest value above 0, and why: ``{name: (least, reason)}``.
+    tuning_least: ClassVar[Mapping[str, tuple[float, str]]] = {}
     # Set by _init_state (FilterpyState makes them properties over a filterpy filter).
     x: np.ndarray
     p: np.ndarray
@@ -192,7 +194,8 @@ class Estimator(ABC):
         entries of ``tuning`` (a battery file's ``filters.<name>`` block), tuples as floats;
         an unknown entry, a list where a number belongs or the reverse, a tuple of the wrong
         length, or a number out of its entry's domain (:attr:`positive_tuning`,
-        :attr:`signed_tuning`, else >= 0; NaN never) is a ``ValueError``."""
+        :attr:`signed_tuning`, else >= 0; :attr:`tuning_least`; NaN never) is a
+        ``ValueError``."""
         merged = dict(cls.default_tuning)
         for key, value in (tuning or {}).items():
             if key not in merged:
@@ -225,6 +228,11 @@ class Estimator(ABC):
                 raise ValueError(f"{cls.name}: tuning {key!r} must be > 0, got {v!r}")
             if key not in cls.signed_tuning and not v >= 0.0:
                 raise ValueError(f"{cls.name}: tuning {key!r} must be >= 0, got {v!r}")
+            if key in cls.tuning_least and v < cls.tuning_least[key][0]:
+                least, why = cls.tuning_least[key]
+                raise ValueError(
+                    f"{cls.name}: tuning {key!r} needs >= {least:g} ({why}), got {v!r}"
+                )
 
     def _new_floor_count(self) -> ChargeCount:
         """The count of :attr:`count_floor`, with the file's count error budget (the guard's:

@@ -197,7 +197,6 @@ papers report:
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -205,14 +204,6 @@ from ..units import SECONDS_PER_HOUR
 from .guard import COUNT_ERROR_DEFAULTS, ChargeCount, Guarded, count_errors, guard
 from .soc_grid import SocGrid
 from .t2rc_ukf import T2rcUkf
-
-#: The smallest value of these tuning entries, and why (a fuzz of the battery files found
-#: each: below it a variance underflowed to 0 or a division overflowed).
-TUNING_MIN = {
-    "grid_points": (2, "a grid of two points at least"),
-    "extrapolation_scale_c": (0.01, "degC: finer than a temperature sensor reads"),
-    "bias_std_v": (1e-6, "V: a microvolt, below any ADC's step"),
-}
 
 
 class Hybrid(T2rcUkf):
@@ -306,20 +297,18 @@ class Hybrid(T2rcUkf):
         "follow_tau_s",
         "grid_points",
     }
+    # A fuzz of the battery files found each: below it a variance underflowed to 0 or a
+    # division overflowed.
+    tuning_least = {
+        "grid_points": (2, "a grid of two points at least"),
+        "extrapolation_scale_c": (0.01, "degC: finer than a temperature sensor reads"),
+        "bias_std_v": (1e-6, "V: a microvolt, below any ADC's step"),
+    }
     # Without the resistance state (``resistance_std_frac: 0``) ``_init_state`` drops its name.
     state_names: tuple[str, ...] = (*T2rcUkf.state_names, "bias_v", "r_delta_ohm")
     count: ChargeCount  # the guard's charge count (item 7), made by _init_state
     grid: SocGrid | None  # item 12's posterior while the SoC is wide, else None
     _rest_fused: bool  # this rest's OCV reading is in the count
-
-    @classmethod
-    def _check_domain(cls, key: str, value: Any) -> None:
-        super()._check_domain(key, value)
-        if key in TUNING_MIN and value < TUNING_MIN[key][0]:
-            least, why = TUNING_MIN[key]
-            raise ValueError(
-                f"{cls.name}: tuning {key!r} needs >= {least:g} ({why}), got {value!r}"
-            )
 
     # -- the model-error states (items 5 and 8): x = [model state, bias_v, (r_delta_ohm)] ------
     @property
