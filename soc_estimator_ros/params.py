@@ -426,15 +426,19 @@ class _Checker:
         key: str,
         positive: bool = False,
         min_len: int = 1,
-        hi: float | None = None,
+        bounds: tuple[float, float] | None = None,
     ) -> tuple[float, ...]:
+        """A list of numbers: each > 0 with ``positive``, in ``bounds`` (:meth:`within`)
+        where given."""
         if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
             raise self.fail(key, value, "a list of numbers")
         if len(value) < min_len:
             raise self.fail(key, value, f"a list of at least {min_len} numbers")
+        if bounds is not None:
+            return tuple(self.within(v, f"{key}[{i}]", bounds) for i, v in enumerate(value))
         if positive:
-            return tuple(self.positive(v, f"{key}[{i}]", hi) for i, v in enumerate(value))
-        return tuple(self.number(v, f"{key}[{i}]", hi=hi) for i, v in enumerate(value))
+            return tuple(self.positive(v, f"{key}[{i}]") for i, v in enumerate(value))
+        return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
 
     def within(self, value: Any, key: str, bounds: tuple[float, float]) -> float:
         """A number in ``bounds`` (an :data:`ABSURD` range: a lowest of 0 means > 0)."""
@@ -467,15 +471,10 @@ class _Checker:
     ) -> ParamTable:
         """A table of values in ``bounds`` (:meth:`within`): 1-D over SoC (one temperature) or
         2-D (temperature x SoC)."""
-
-        def row(r: Any, where: str) -> tuple[float, ...]:
-            values = self.numbers(r, where)
-            return tuple(self.within(v, f"{where}[{i}]", bounds) for i, v in enumerate(values))
-
         if isinstance(value, Sequence) and value and isinstance(value[0], Sequence):
-            rows = [row(r, f"{key}[{i}]") for i, r in enumerate(value)]
+            rows = [self.numbers(r, f"{key}[{i}]", bounds=bounds) for i, r in enumerate(value)]
         else:
-            rows = [row(value, key)]
+            rows = [self.numbers(value, key, bounds=bounds)]
         if len(rows) != len(temps):
             raise self.fail(key, value, f"{len(temps)} rows, one per thevenin.temperature_c")
         for i, r in enumerate(rows):
@@ -498,12 +497,11 @@ def _parse_filters(chk: _Checker, node: Any) -> dict[str, dict[str, float | tupl
         for name, value in blk.items():
             key = f"filters.{est}.{name}"
             positive = str(name).startswith(("p0", "q", "r"))
+            bounds = (0.0 if positive else -ABSURD_TUNING, ABSURD_TUNING)
             if isinstance(value, Sequence) and not isinstance(value, str):
-                parsed[str(name)] = chk.numbers(value, key, positive=positive, hi=ABSURD_TUNING)
-            elif positive:
-                parsed[str(name)] = chk.positive(value, key, ABSURD_TUNING)
+                parsed[str(name)] = chk.numbers(value, key, bounds=bounds)
             else:
-                parsed[str(name)] = chk.number(value, key, -ABSURD_TUNING, ABSURD_TUNING)
+                parsed[str(name)] = chk.within(value, key, bounds)
         out[str(est)] = parsed
     return out
 
@@ -601,8 +599,7 @@ def _ocv_points(
     """An OCV table's points (``ocv:``, ``rest_ocv:``): SoC in [0, 1] and volts in ``bounds``,
     both increasing, one voltage per SoC."""
     soc = chk.numbers(chk.get(node, "soc", key), f"{key}.soc", min_len=2)
-    volts = chk.numbers(chk.get(node, "voltage_v", key), f"{key}.voltage_v")
-    volts = tuple(chk.within(v, f"{key}.voltage_v[{i}]", bounds) for i, v in enumerate(volts))
+    volts = chk.numbers(chk.get(node, "voltage_v", key), f"{key}.voltage_v", bounds=bounds)
     if len(volts) != len(soc):
         raise chk.fail(f"{key}.voltage_v", volts, f"{len(soc)} values, one per {key}.soc point")
     for i, x in enumerate(soc):
@@ -989,6 +986,13 @@ def battery_params_to_dict(params: BatteryParams) -> dict[str, Any]:
     if cells:
         out["cells"] = cells
     return out
+
+
+def output_dir_error(path: str | Path) -> str | None:
+    """Why a battery file cannot be written at ``path``, said before the work that makes it
+    (``soc_identify``'s fits, ``soc_tune``'s search): its directory is missing; else None."""
+    parent = Path(path).parent
+    return None if parent.is_dir() else f"no directory {parent} for --output"
 
 
 def write_battery_file(path: str | Path, data: Mapping[str, Any], header: str) -> None:

@@ -47,6 +47,7 @@ from ..params import (
     BatteryParams,
     battery_params_to_dict,
     load_battery_params,
+    output_dir_error,
     write_battery_file,
 )
 from ..recordings import add_recording_arguments, read_recording
@@ -338,10 +339,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.capacity_measured and args.capacity_ah is None:
         ap.error("--capacity-measured says how --capacity-ah was obtained: give --capacity-ah")
     sign = CurrentSign(args.current_sign)
-    if not args.output.parent.is_dir():  # said before the fits, not after them
-        print(
-            f"soc_identify: error: no directory {args.output.parent} for --output", file=sys.stderr
-        )
+    if (why := output_dir_error(args.output)) is not None:
+        print(f"soc_identify: error: {why}", file=sys.stderr)
         return 2
     try:
         template = load_battery_params(args.template or bundled_file(args.chemistry))

@@ -36,7 +36,12 @@ import numpy as np
 
 from ..errors import SocEstimatorError
 from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
-from ..params import battery_params_to_dict, load_battery_params, write_battery_file
+from ..params import (
+    battery_params_to_dict,
+    load_battery_params,
+    output_dir_error,
+    write_battery_file,
+)
 from ..recordings import read_recording
 from ..replay.cli import expand_inputs
 from ..replay.fleet import run_on_dask
@@ -246,8 +251,8 @@ def _provenance(path: Path) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if not args.output.parent.is_dir():  # said before the search, not after it
-        print(f"soc_tune: error: no directory {args.output.parent} for --output", file=sys.stderr)
+    if (why := output_dir_error(args.output)) is not None:
+        print(f"soc_tune: error: {why}", file=sys.stderr)
         return 2
     try:
         inputs = expand_inputs(args.recordings)
