@@ -100,7 +100,7 @@ BAD = [
     ("thevenin.fitted_c_rate_max", 0.0, "thevenin.fitted_c_rate_max", ">= 0.001"),
     ("filters.rc_kf_paper.r", -0.8, "filters.rc_kf_paper.r", "> 0"),
     ("filters.rc_kf_paper.q_diag", [1e-5, "x", 0.9], "filters.rc_kf_paper.q_diag[1]", "number"),
-    # Absurd values (params.ABSURD_MODEL, ABSURD_TUNING), each once ran into NaN estimates or
+    # Absurd values (params.ABSURD, ABSURD_TUNING), each once ran into NaN estimates or
     # an exception on every sample; the LFP pack has 4 cells in series.
     ("thevenin.r0_ohm[1]", 1e300, "thevenin.r0_ohm[1]", "<= 400"),
     ("thevenin.branches[1].c_f[2]", 1e300, "thevenin.branches[1].c_f[2]", "<= 1e+10"),
