@@ -7,6 +7,7 @@ their agreement with themselves. Deterministic: the same seed gives the same byt
     python tools/make_bags.py                 # every bag into bags/
     python tools/make_bags.py --only sla_pulse_test --jobs 1
     python tools/make_bags.py --dev --out /tmp/missions   # the unbundled dev missions
+    python tools/make_bags.py --dev --only li_ion4s_pulse_test_5c --out dev_bags   # its 5 degC
     python tools/make_bags.py --graphite-diffusivity-x 10 --out /tmp/fast_graphite --only \
         lfp_pulse_test lfp_pulse_test_5c lfp_slow_discharge lfp_rate_test lfp_rate_test_5c \
         lfp_load_test lfp_field_run_1_full_rest lfp_field_run_2_partial lfp_field_run_3_cold
@@ -1096,7 +1097,8 @@ SPECS = [
 #: Not bundled (``--dev``, into a directory of your own): seeder missions from full to 20 %
 #: with seeds apart from the field runs', on which ``benchmarks/studies/table_transfer.py`` fits the
 #: 2RC's tables to see whether they carry over to the field runs (docs/identification.md); the
-#: 4S Li-ion pack's pulse test at 5 degC (docs/cells.md, a cold pulse test in the Li-ion file).
+#: 4S Li-ion pack's pulse test at 5 degC, which config/li_ion_4s_chen2020.yaml is identified
+#: from beside the bundled 25 degC one (``--dev --only li_ion4s_pulse_test_5c --out dev_bags``).
 DEV_SPECS = [
     BagSpec(
         f"lfp_mission_{seed}",
@@ -1114,7 +1116,7 @@ DEV_SPECS = [
         33,
         temp_c=5.0,
         description="The pulse test of li_ion4s_pulse_test at 5 degC ambient (a dev bag: bags/ "
-        "has no room for it; docs/cells.md, what a cold pulse test gives the 4S Li-ion file).",
+        "has no room for it; config/li_ion_4s_chen2020.yaml's 5 degC row).",
         rate_hz=2.0,
         tail_rate_hz=0.5,
     )
