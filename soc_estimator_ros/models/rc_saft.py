@@ -35,7 +35,7 @@ Where the paper is wrong:
 * V_o as a third state adds a mode the circuit has not (the circuit's are 0 and
   ``-(1/C_b + 1/C_s)/S``): A33, excited by any filter update that moves V_o off the circuit's
   value, and growing where A33 > 0, i.e. ``C_s R_s > C_b R_b`` (the surface capacitor the
-  slower). The battery file's parser refuses such a model (``params.py``).
+  slower). The battery file's parser refuses such a model (``params/parse.py``).
 
 Discretization is exact for a current held constant between samples (zero-order hold) for any
 dt: ``[[F, g], [0, 1]] = expm([[A, B], [0, 0]] dt)``, then ``V_o`` jumps by
