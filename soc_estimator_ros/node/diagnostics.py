@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any
 
+from ..estimators.guard import Guarded
 from ..estimators.hybrid import Hybrid
 from ..messages import RUNTIME_FIELDS
 from ..runtime import BatteryLevel
@@ -98,9 +99,40 @@ class Diagnostics:
     ) -> Report:
         """The status now; ``extra`` key-values."""
         tr = self.tracker
-        lim = tr.battery.limits
-        est = tr.last_estimate
-        last = tr.last_sample
+        hybrid = tr.estimator if isinstance(tr.estimator, Hybrid) else None
+        guarded = hybrid.guarded() if hybrid is not None and tr.last_estimate is not None else None
+        outside_c = self._outside_c()
+        stale, problems = self._input_problems(now_steady_s, stale_timeout_s)
+        problems += self._battery_problems()
+        problems += self._model_problems(outside_c, hybrid, guarded)
+        cell_problems, cell_values = self._cells()
+        problems += cell_problems
+        problems += self._health_problems()
+        level = max((lvl for lvl, _ in problems), default=Level.OK)
+        message = "; ".join(m for _, m in problems) or "OK"
+        values = self._estimate_values(now_steady_s, stale, outside_c)
+        values += self._runtime_values()
+        values += self._estimator_values(hybrid, guarded)
+        values += self._health_values()
+        values += cell_values
+        values += extra or []
+        return Report(level, message, [(k, _text(v)) for k, v in values])
+
+    def _outside_c(self) -> float:
+        """How far (degC) the last sample's temperature lies outside the model's identified
+        range (0 inside, or for a model without one)."""
+        tr = self.tracker
+        extrapolation_c = getattr(getattr(tr.estimator, "model", None), "extrapolation_c", None)
+        if tr.last_sample is None or extrapolation_c is None:
+            return 0.0
+        return float(extrapolation_c(tr.last_sample.temperature_c))
+
+    def _input_problems(
+        self, now_steady_s: float, stale_timeout_s: float
+    ) -> tuple[bool, list[tuple[Level, str]]]:
+        """Whether the input is stale, and the input's problems: none accepted yet or for too
+        long, rejections, ignored temperatures and missing samples since the last report."""
+        tr = self.tracker
         problems: list[tuple[Level, str]] = []
         stale = False
         if tr.last_accept_steady_s is None:
@@ -119,39 +151,48 @@ class Diagnostics:
             new = self._new_since_last(key, count)
             if new > 0:
                 problems.append((Level.WARN, f"{new} {what}"))
-        rt = tr.runtime
-        th = rt.thresholds
-        if est is not None and last is not None:
-            battery_level = rt.level
-            if battery_level is not BatteryLevel.OK:
-                severity = Level.WARN if battery_level is BatteryLevel.WARN else Level.ERROR
-                problems.append(
-                    (
-                        severity,
-                        f"low SoC {est.soc:.3f}: level {battery_level.label} "
-                        f"(below {th.threshold(battery_level):.3f})",
-                    )
+        return stale, problems
+
+    def _battery_problems(self) -> list[tuple[Level, str]]:
+        """The low-battery level and the pack voltage against the limits."""
+        tr = self.tracker
+        est, last, rt = tr.last_estimate, tr.last_sample, tr.runtime
+        if est is None or last is None:
+            return []
+        problems: list[tuple[Level, str]] = []
+        battery_level = rt.level
+        if battery_level is not BatteryLevel.OK:
+            severity = Level.WARN if battery_level is BatteryLevel.WARN else Level.ERROR
+            problems.append(
+                (
+                    severity,
+                    f"low SoC {est.soc:.3f}: level {battery_level.label} "
+                    f"(below {rt.thresholds.threshold(battery_level):.3f})",
                 )
-            v = last.voltage_v
-            if v > lim.voltage_max_v:
-                problems.append((Level.ERROR, f"overvoltage {v:.3f} V > {lim.voltage_max_v:g} V"))
-            elif v < lim.voltage_min_v:
-                problems.append((Level.ERROR, f"undervoltage {v:.3f} V < {lim.voltage_min_v:g} V"))
-        extrapolation_c = getattr(getattr(tr.estimator, "model", None), "extrapolation_c", None)
-        outside_c = 0.0
-        if last is not None and extrapolation_c is not None:
-            outside_c = float(extrapolation_c(last.temperature_c))
-            if outside_c != 0.0:
-                where = "below" if outside_c < 0 else "above"
-                problems.append(
-                    (
-                        Level.WARN,
-                        f"extrapolating: {abs(outside_c):.1f} degC {where} the identified "
-                        "temperature range",
-                    )
+            )
+        v, lim = last.voltage_v, tr.battery.limits
+        if v > lim.voltage_max_v:
+            problems.append((Level.ERROR, f"overvoltage {v:.3f} V > {lim.voltage_max_v:g} V"))
+        elif v < lim.voltage_min_v:
+            problems.append((Level.ERROR, f"undervoltage {v:.3f} V < {lim.voltage_min_v:g} V"))
+        return problems
+
+    @staticmethod
+    def _model_problems(
+        outside_c: float, hybrid: Hybrid | None, guarded: Guarded | None
+    ) -> list[tuple[Level, str]]:
+        """The voltage model: outside its temperatures, weighed out by the guard, off by a
+        persistent error under load."""
+        problems: list[tuple[Level, str]] = []
+        if outside_c != 0.0:
+            where = "below" if outside_c < 0 else "above"
+            problems.append(
+                (
+                    Level.WARN,
+                    f"extrapolating: {abs(outside_c):.1f} degC {where} the identified "
+                    "temperature range",
                 )
-        hybrid = tr.estimator if isinstance(tr.estimator, Hybrid) else None
-        guarded = hybrid.guarded() if hybrid is not None and est is not None else None
+            )
         if guarded is not None and guarded.model_weight < MODEL_WEIGHT_WARN:
             problems.append(
                 (
@@ -168,17 +209,26 @@ class Diagnostics:
                     "load for a minute: read as one reading a minute",
                 )
             )
-        cell_problems, cell_values = self._cells()
-        problems += cell_problems
-        health = tr.health
-        if health is not None:
-            soh, hs = health.applied_soh, tr.battery.health
-            if soh < hs.soh_warn:
-                severity = Level.ERROR if soh < hs.soh_dead else Level.WARN
-                limit = hs.soh_dead if soh < hs.soh_dead else hs.soh_warn
-                problems.append((severity, f"state of health {soh:.2f} below {limit:g}"))
-        level = max((lvl for lvl, _ in problems), default=Level.OK)
-        message = "; ".join(m for _, m in problems) or "OK"
+        return problems
+
+    def _health_problems(self) -> list[tuple[Level, str]]:
+        """The applied state of health against the battery file's thresholds."""
+        health = self.tracker.health
+        if health is None:
+            return []
+        soh, hs = health.applied_soh, self.tracker.battery.health
+        if soh >= hs.soh_warn:
+            return []
+        severity = Level.ERROR if soh < hs.soh_dead else Level.WARN
+        limit = hs.soh_dead if soh < hs.soh_dead else hs.soh_warn
+        return [(severity, f"state of health {soh:.2f} below {limit:g}")]
+
+    def _estimate_values(
+        self, now_steady_s: float, stale: bool, outside_c: float
+    ) -> list[tuple[str, Any]]:
+        """The estimate (carried forward while stale), the last sample and the counts."""
+        tr = self.tracker
+        est, last, gate = tr.last_estimate, tr.last_sample, tr.gate
         nan = math.nan
         period = tr.sample_period_s
         soc, soc_std, silent_s = tr.carried_forward(now_steady_s)
@@ -186,7 +236,7 @@ class Diagnostics:
             soc = soc_std = nan
         elif not stale:
             soc, soc_std = est.soc, est.soc_std
-        values: list[tuple[str, Any]] = [
+        return [
             ("estimator", tr.estimator_name),
             ("battery", tr.battery.name),
             ("battery_file", self.battery_file),
@@ -212,10 +262,17 @@ class Diagnostics:
                 f"{last.stamp_ns / NS_PER_S:.3f}" if last is not None else "none",
             ),
         ]
+
+    def _runtime_values(self) -> list[tuple[str, Any]]:
+        """The runtime monitor's latest prediction, the level now and the charge phase."""
+        rt = self.tracker.runtime
+        th = rt.thresholds
         predicted = rt.report.fields() if rt.report is not None else {}
         predicted["level"] = int(rt.level)  # the level now, not at the last prediction
-        values += [(k, predicted.get(k, nan)) for k in RUNTIME_FIELDS if k != "stamp_s"]
-        values += [
+        values: list[tuple[str, Any]] = [
+            (k, predicted.get(k, math.nan)) for k in RUNTIME_FIELDS if k != "stamp_s"
+        ]
+        return values + [
             ("level_name", rt.level.label),
             ("level_warn_soc", th.warn_soc),
             ("level_critical_soc", th.critical_soc),
@@ -223,10 +280,17 @@ class Diagnostics:
             ("charge_phase", rt.charge.phase.value),
             ("charge_voltage_v", rt.charge.spec.voltage_v),
         ]
-        if hasattr(tr.estimator, "nis_avg"):
-            values.append(("nis_avg", float(tr.estimator.nis_avg)))
-        if hasattr(tr.estimator, "ocv_corrections"):
-            values.append(("ocv_corrections", int(tr.estimator.ocv_corrections)))
+
+    def _estimator_values(
+        self, hybrid: Hybrid | None, guarded: Guarded | None
+    ) -> list[tuple[str, Any]]:
+        """The estimator's own: NIS average, OCV corrections, the hybrid's guard and grid."""
+        estimator = self.tracker.estimator
+        values: list[tuple[str, Any]] = []
+        if hasattr(estimator, "nis_avg"):
+            values.append(("nis_avg", float(estimator.nis_avg)))
+        if hasattr(estimator, "ocv_corrections"):
+            values.append(("ocv_corrections", int(estimator.ocv_corrections)))
         if hybrid is not None and guarded is not None:
             charge_count = hybrid.count
             values += [
@@ -239,9 +303,16 @@ class Diagnostics:
                 # item 12: the SoC's grid posterior, nan once the SoC is no longer wide
                 (
                     "soc_grid_std",
-                    nan if hybrid.grid is None else math.sqrt(hybrid.grid.moments()[1]),
+                    math.nan if hybrid.grid is None else math.sqrt(hybrid.grid.moments()[1]),
                 ),
             ]
+        return values
+
+    def _health_values(self) -> list[tuple[str, Any]]:
+        """The learned health (with ``learn_health``) and the OCV's hysteresis branch."""
+        tr = self.tracker
+        health = tr.health
+        values: list[tuple[str, Any]] = []
         if health is not None:
             values += [(f"health_{k}", v) for k, v in health.fields().items()]
             values += [
@@ -257,9 +328,7 @@ class Diagnostics:
                 ("hysteresis_branch", tr.hysteresis.branch),
                 ("hysteresis_branch_std", math.sqrt(tr.hysteresis.var)),
             ]
-        values += cell_values
-        values += extra or []
-        return Report(level, message, [(k, _text(v)) for k, v in values])
+        return values
 
     def _cells(self) -> tuple[list[tuple[Level, str]], list[tuple[str, Any]]]:
         """The cells' problems and values (``cells/``), none before a sample with cells:
