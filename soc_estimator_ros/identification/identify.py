@@ -288,6 +288,62 @@ def rested_ocv(
     return OcvTable(soc=tuple(float(x) for x in soc), voltage_v=tuple(float(v) for v in volts))
 
 
+def _fit_pulses(
+    test: BatterySeries,
+    pulses: list[Pulse],
+    soc_at: np.ndarray,
+    shape_ocv: OcvCurve,
+    min_tau_s: float,
+    notes: list[str],
+    progress: Callable[[str], None] | None,
+) -> tuple[list[PulseFit], list[RcFit], list[Pulse]]:
+    """Every pulse's 2-RC fit and seed 000's RC fit; a pulse whose fit fails is skipped and
+    noted. A pulse whose onset crosses a bend of ``shape_ocv`` is fitted on its end."""
+    fits: list[PulseFit] = []
+    rcs: list[RcFit] = []
+    fitted: list[Pulse] = []
+    for n, p in enumerate(pulses, 1):
+        if progress:
+            progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
+        bend_v = ocv_bend_v(shape_ocv, onset_soc(test, p, soc_at))
+        anchor_end = bend_v > ONSET_BEND_V
+        if anchor_end:
+            notes.append(
+                f"pulse at SoC {soc_at[p.start]:.2f}: the OCV bends {1000 * bend_v:.1f} mV "
+                f"(> {1000 * ONSET_BEND_V:g}) over its onset: fitted on its end and the rest "
+                f"after it, at SoC {soc_at[p.end]:.2f}"
+            )
+        try:
+            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s, anchor_end=anchor_end)
+            rc_fit = fit_rc_pulse(test, p)
+        except (IdentificationError, RuntimeError, ValueError) as exc:
+            notes.append(f"pulse at t = {test.t_s[p.start]:.0f} s skipped: {exc}")
+            continue
+        fits.append(fit)
+        rcs.append(rc_fit)
+        fitted.append(p)
+    if not fits:
+        raise IdentificationError(f"none of the {len(pulses)} pulse fits succeeded")
+    return fits, rcs, fitted
+
+
+def _rc_model(
+    capacity_ah: float, ocv_soc: np.ndarray, ocv_v: np.ndarray, rcs: list[RcFit]
+) -> RcModelParams:
+    """Seed 000's RC model: the resistances and ``C_s`` the medians of the pulses' fits (its
+    eqs. 6-10); the bulk capacitor, whose voltage is the OCV, holds the capacity over the
+    OCV's span, ``C_b = 3600 Q dSoC / dV`` (the paper gives no rule for it)."""
+    span_v = float(ocv_v[-1] - ocv_v[0])
+    span_soc = float(ocv_soc[-1] - ocv_soc[0])
+    return RcModelParams(
+        c_b_f=3600.0 * capacity_ah * span_soc / span_v,
+        c_s_f=float(np.median([r.c_s_f for r in rcs])),
+        r_b_ohm=float(np.median([r.r_b_ohm for r in rcs])),
+        r_s_ohm=float(np.median([r.r_s_ohm for r in rcs])),
+        r_t_ohm=float(np.median([r.r_t_ohm for r in rcs])),
+    )
+
+
 def identify(
     test: BatterySeries,
     template: BatteryParams,
@@ -336,32 +392,10 @@ def identify(
             "pulses is the rate test's; a faster branch would add, within a second of any "
             "load, the recovery a 30-min pulse builds over minutes)"
         )
-    fits: list[PulseFit] = []
-    rcs: list[RcFit] = []
-    fitted: list[Pulse] = []
     ocv_curve = OcvCurve(ocv_soc, ocv_v)
-    for n, p in enumerate(pulses, 1):
-        if progress:
-            progress(f"pulse {n}/{len(pulses)} at SoC {soc_at[p.start]:.2f}")
-        bend_v = ocv_bend_v(shape_ocv or ocv_curve, onset_soc(test, p, soc_at))
-        anchor_end = bend_v > ONSET_BEND_V
-        if anchor_end:
-            notes.append(
-                f"pulse at SoC {soc_at[p.start]:.2f}: the OCV bends {1000 * bend_v:.1f} mV "
-                f"(> {1000 * ONSET_BEND_V:g}) over its onset: fitted on its end and the rest "
-                f"after it, at SoC {soc_at[p.end]:.2f}"
-            )
-        try:
-            fit = fit_pulse(test, p, soc_at, min_tau_s=min_tau_s, anchor_end=anchor_end)
-            rc_fit = fit_rc_pulse(test, p)
-        except (IdentificationError, RuntimeError, ValueError) as exc:
-            notes.append(f"pulse at t = {test.t_s[p.start]:.0f} s skipped: {exc}")
-            continue
-        fits.append(fit)
-        rcs.append(rc_fit)
-        fitted.append(p)
-    if not fits:
-        raise IdentificationError(f"none of the {len(pulses)} pulse fits succeeded")
+    fits, rcs, fitted = _fit_pulses(
+        test, pulses, soc_at, shape_ocv or ocv_curve, min_tau_s, notes, progress
+    )
     by_soc = [level_fit(g) for g in group_by_soc(fits)]
     if len(by_soc) < len(fits):
         notes.append(
@@ -373,15 +407,7 @@ def identify(
     if rate_test is not None:
         kinetic = rate_test_fits(rate_test, float(capacity), notes, thevenin, ocv_curve)
         thevenin = with_kinetics(thevenin, [kinetic])
-    span_v = float(ocv_v[-1] - ocv_v[0])
-    span_soc = float(ocv_soc[-1] - ocv_soc[0])
-    rc = RcModelParams(
-        c_b_f=3600.0 * capacity * span_soc / span_v,
-        c_s_f=float(np.median([r.c_s_f for r in rcs])),
-        r_b_ohm=float(np.median([r.r_b_ohm for r in rcs])),
-        r_s_ohm=float(np.median([r.r_s_ohm for r in rcs])),
-        r_t_ohm=float(np.median([r.r_t_ohm for r in rcs])),
-    )
+    rc = _rc_model(float(capacity), ocv_soc, ocv_v, rcs)
     battery = replace(
         template,
         capacity_ah=float(capacity),
