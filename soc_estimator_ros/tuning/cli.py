@@ -31,12 +31,14 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import SocEstimatorError
 from ..estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
 from ..params import (
+    BatteryParams,
     battery_params_to_dict,
     load_battery_params,
     output_dir_error,
@@ -249,83 +251,131 @@ def _provenance(path: Path) -> list[str]:
     return lines
 
 
+def _checked_inputs(
+    args: argparse.Namespace,
+) -> tuple[list[str], BatteryParams, tuple[Dimension, ...], dict[str, Any]]:
+    """The recordings (each with a reference SoC), the battery file, the search space and the
+    estimator's tuning as the file gives it; every fault raised before any run."""
+    inputs = expand_inputs(args.recordings)
+    if any(isinstance(p, str) for p in inputs):
+        raise ValueError("soc_tune reads local recordings (fetch URLs first)")
+    paths = [str(p) for p in inputs]
+    battery = load_battery_params(args.params)
+    space = _space(args)
+    block0 = battery.filters.get(args.estimator)
+    base = make_estimator(args.estimator, battery, 0.5, 0.1, block0).tuning
+    for d in space:
+        if d.key not in base:
+            raise ValueError(
+                f"--space {d.label}: {args.estimator} has no tuning entry {d.key!r} "
+                f"(known: {', '.join(sorted(base))})"
+            )
+    apply(base, {d.label: d.lo for d in space})  # a tuple entry's element exists
+    folds(len(paths), args.folds, args.seed)  # before any run: k fits the recordings
+    for p in paths:
+        if read_recording(Path(p)).soc_ref is None:
+            raise ValueError(f"{p}: no reference SoC to tune on")
+    return paths, battery, space, base
+
+
+def _scorer(
+    args: argparse.Namespace, paths: list[str], store: ScoreCache | None
+) -> Callable[[list[dict[str, float]]], np.ndarray]:
+    """Scores a batch of tunings on every recording (a row each), from ``store`` where it
+    holds the tuning, else by running them (``--jobs`` or ``--dask``), storing each whole row."""
+
+    def evaluate(batch: list[dict[str, float]]) -> np.ndarray:
+        rows = np.empty((len(batch), len(paths)))
+        todo = []
+        for i, c in enumerate(batch):
+            cached = None if store is None else store.get(c)
+            if cached is None:
+                todo.append(i)
+            else:
+                rows[i] = cached
+        tasks: list[Task] = [
+            (p, str(args.params), args.estimator, batch[i], args.wrong_start)
+            for i in todo
+            for p in paths
+        ]
+
+        def done(k: int, value: float) -> None:
+            i, r = todo[k // len(paths)], k % len(paths)
+            rows[i, r] = value
+            if store is not None and r == len(paths) - 1:
+                store.put(batch[i], rows[i])  # its last recording: the row is whole
+
+        if tasks:
+            _evaluate(tasks, args, done)
+        return rows
+
+    return evaluate
+
+
+def _search(
+    args: argparse.Namespace,
+    table: ScoreTable,
+    space: tuple[Dimension, ...],
+    base: dict[str, Any],
+    recordings: int,
+) -> tuple[CrossValidation, list[int]]:
+    """The cross-validated search, and each walk's moves: a compass search (``local``), or
+    random candidates (no walk)."""
+    if args.search == "local":
+        return compass_cross_validate(
+            table,
+            space,
+            base,
+            args.step,
+            args.rounds,
+            recordings,
+            args.folds,
+            args.seed,
+            log=_note,
+        )
+    if args.trials < 1:
+        raise ValueError("--trials must be >= 1")
+    table.indices(candidates(space, args.trials, args.seed))
+    return cross_validate(table.scores, args.folds, args.seed), []
+
+
+def _tuned_file(
+    args: argparse.Namespace,
+    battery: BatteryParams,
+    space: tuple[Dimension, ...],
+    base: dict[str, Any],
+    chosen_candidate: dict[str, float],
+) -> dict[str, Any]:
+    """The battery file with the chosen tuning. Only what the search changed: an entry it left
+    as it was stays as the file had it (given, or the code default), so soc_identify, which
+    keeps its template's tunings, rewrites the same file from a tuned template."""
+    data = battery_params_to_dict(battery)
+    block = dict(battery.filters.get(args.estimator, {}))
+    chosen = apply(base, chosen_candidate)
+    touched = {d.key for d in space if d.label in chosen_candidate}
+    block.update({k: chosen[k] for k in sorted(touched) if chosen[k] != base[k]})
+    data.setdefault("filters", {})[args.estimator] = {
+        k: list(v) if isinstance(v, tuple) else v for k, v in block.items()
+    }
+    return data
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if (why := output_dir_error(args.output)) is not None:
         print(f"soc_tune: error: {why}", file=sys.stderr)
         return 2
     try:
-        inputs = expand_inputs(args.recordings)
-        if any(isinstance(p, str) for p in inputs):
-            raise ValueError("soc_tune reads local recordings (fetch URLs first)")
-        paths = [str(p) for p in inputs]
-        battery = load_battery_params(args.params)
+        paths, battery, space, base = _checked_inputs(args)
         provenance = _provenance(args.params)
-        space = _space(args)
-        block0 = battery.filters.get(args.estimator)
-        base = make_estimator(args.estimator, battery, 0.5, 0.1, block0).tuning
-        for d in space:
-            if d.key not in base:
-                raise ValueError(
-                    f"--space {d.label}: {args.estimator} has no tuning entry {d.key!r} "
-                    f"(known: {', '.join(sorted(base))})"
-                )
-        apply(base, {d.label: d.lo for d in space})  # a tuple entry's element exists
-        folds(len(paths), args.folds, args.seed)  # before any run: k fits the recordings
-        for p in paths:
-            if read_recording(Path(p)).soc_ref is None:
-                raise ValueError(f"{p}: no reference SoC to tune on")
-
         store = None
         if args.cache is not None:
             context = context_of(args.estimator, args.params, paths, args.wrong_start)
             store = ScoreCache(args.cache, context)
             unread = f" ({store.skipped} unreadable lines skipped)" if store.skipped else ""
             _note(f"--cache {args.cache}: {len(store)} tunings scored before{unread}")
-
-        def evaluate(batch: list[dict[str, float]]) -> np.ndarray:
-            rows = np.empty((len(batch), len(paths)))
-            todo = []
-            for i, c in enumerate(batch):
-                cached = None if store is None else store.get(c)
-                if cached is None:
-                    todo.append(i)
-                else:
-                    rows[i] = cached
-            tasks: list[Task] = [
-                (p, str(args.params), args.estimator, batch[i], args.wrong_start)
-                for i in todo
-                for p in paths
-            ]
-
-            def done(k: int, value: float) -> None:
-                i, r = todo[k // len(paths)], k % len(paths)
-                rows[i, r] = value
-                if store is not None and r == len(paths) - 1:
-                    store.put(batch[i], rows[i])  # its last recording: the row is whole
-
-            if tasks:
-                _evaluate(tasks, args, done)
-            return rows
-
-        table = ScoreTable(evaluate)
-        if args.search == "local":
-            cv, moves = compass_cross_validate(
-                table,
-                space,
-                base,
-                args.step,
-                args.rounds,
-                len(paths),
-                args.folds,
-                args.seed,
-                log=_note,
-            )
-        elif args.trials < 1:
-            raise ValueError("--trials must be >= 1")
-        else:
-            table.indices(candidates(space, args.trials, args.seed))
-            cv, moves = cross_validate(table.scores, args.folds, args.seed), []
+        table = ScoreTable(_scorer(args, paths, store))
+        cv, moves = _search(args, table, space, base, len(paths))
         cands = table.candidates
     except (SocEstimatorError, ValueError, KeyError, IndexError, TypeError, OSError) as exc:
         print(f"soc_tune: error: {exc}", file=sys.stderr)
@@ -339,17 +389,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return REFUSED
-    data = battery_params_to_dict(battery)
-    block = dict(battery.filters.get(args.estimator, {}))
-    # Only what the search changed: an entry it left as it was stays as the file had it (given,
-    # or the code default), so soc_identify, which keeps its template's tunings, rewrites the
-    # same file from a tuned template.
-    chosen = apply(base, cands[cv.chosen])
-    touched = {d.key for d in space if d.label in cands[cv.chosen]}
-    block.update({k: chosen[k] for k in sorted(touched) if chosen[k] != base[k]})
-    data.setdefault("filters", {})[args.estimator] = {
-        k: list(v) if isinstance(v, tuple) else v for k, v in block.items()
-    }
+    data = _tuned_file(args, battery, space, base, cands[cv.chosen])
     command = shlex.join(["soc_tune", *(argv if argv is not None else sys.argv[1:])])
     header = (
         f"# Tuned by soc_tune ({args.estimator}) on {', '.join(names)}: held-out J "
